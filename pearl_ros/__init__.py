@@ -1,0 +1,7 @@
+"""pearl_ros: online multi-body motion segmentation with PEaRL (Isack & Boykov, IJCV 2012).
+
+Layers run one way: ``core`` (numpy, scipy, maxflow) <- ``online`` <- ``bagio`` and ``ros`` <- ``cli``.
+Only ``pearl_ros.ros`` imports rclpy.
+"""
+
+__version__ = '0.1.0'

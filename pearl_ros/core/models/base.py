@@ -1,0 +1,52 @@
+"""The protocol every motion model follows (after scikit-image's ``measure.fit`` models).
+
+A model works on per-point *data* rows built from tracks by :meth:`MotionModel.data`, so that the
+rest of PEaRL never needs to know what a model measures. Parameters of K hypotheses travel as one
+array ``params`` of shape ``(K, ...)``, which keeps proposal fitting and residuals batched.
+
+Residuals are geometric distances in pixels, so one noise scale serves every model.
+"""
+
+from __future__ import annotations
+
+from typing import ClassVar, Protocol
+
+import numpy as np
+
+
+class MotionModel(Protocol):
+    """A family of rigid-motion models fitted to point data.
+
+    Attributes
+    ----------
+    name : str
+        Registry name (``'affine'``, ``'fundamental'``, ``'homography'``).
+    min_samples : int
+        Points in a minimal sample.
+    """
+
+    name: ClassVar[str]
+    min_samples: int
+
+    def data(self, tracks: np.ndarray) -> np.ndarray:
+        """Per-point rows ``(N, D)`` from ``tracks`` ``(F, N, 2)`` in pixels."""
+        ...
+
+    def fit_minimal(self, data: np.ndarray, samples: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Fit one hypothesis per row of ``samples`` ``(K, min_samples)`` int.
+
+        Returns ``params`` ``(K, ...)`` and ``ok`` ``(K,)`` bool; rows with ``ok`` False are
+        degenerate samples (their params are unspecified) and are skipped by the caller.
+        """
+        ...
+
+    def refit(self, data: np.ndarray, inliers: np.ndarray, params: np.ndarray) -> np.ndarray | None:
+        """Re-estimate one hypothesis from its ``inliers`` (int indices), starting at ``params``.
+
+        Returns the new params (shape of one hypothesis) or None when the inliers are degenerate.
+        """
+        ...
+
+    def residuals(self, data: np.ndarray, params: np.ndarray) -> np.ndarray:
+        """Distances ``(K, N)`` in pixels of every point to each of ``params`` ``(K, ...)``."""
+        ...

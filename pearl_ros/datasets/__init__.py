@@ -1,0 +1,1 @@
+"""Readers for benchmark data sets (file I/O lives here, not in ``core``)."""
