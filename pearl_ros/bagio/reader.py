@@ -1,0 +1,244 @@
+"""Read tracked features and ground truth from bags with rosbags (no ROS installation needed).
+
+Reads ROS 2 bag folders (mcap or sqlite3), bare ``.mcap`` / ``.db3`` files and ROS 1 ``.bag`` files
+(VINS-Mono users often have those). Message decoding lives in :mod:`pearl_ros.bagio.decode`.
+"""
+
+from __future__ import annotations
+
+import struct
+from collections.abc import Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from rosbags.highlevel import AnyReader, AnyReaderError
+from rosbags.rosbag1 import ReaderError as Ros1ReaderError
+from rosbags.rosbag2 import ReaderError as Ros2ReaderError
+from rosbags.serde import SerdeError
+from rosbags.typesys import Stores, TypesysError, get_typestore
+
+from pearl_ros.bagio import decode
+from pearl_ros.core.errors import BagError, InputError
+
+TYPESTORE = get_typestore(Stores.ROS2_KILTED)
+
+POINTCLOUD = 'sensor_msgs/msg/PointCloud'
+POINTCLOUD2 = 'sensor_msgs/msg/PointCloud2'
+FEATURE_TYPES = (POINTCLOUD, POINTCLOUD2)
+TRUTH_TYPES = (POINTCLOUD2,)
+
+# What rosbags (and the storage libraries under it) raise on unreadable input.
+_ROSBAGS_ERRORS: tuple[type[BaseException], ...] = (
+    AnyReaderError,
+    Ros1ReaderError,
+    Ros2ReaderError,
+    SerdeError,
+    TypesysError,
+    OSError,
+    ValueError,
+    RuntimeError,
+    KeyError,
+    IndexError,
+    EOFError,
+    struct.error,
+)
+try:  # the sqlite3 storage reads through apsw
+    import apsw
+
+    _ROSBAGS_ERRORS += (apsw.Error,)
+except ImportError:  # pragma: no cover - apsw is a dependency of rosbags
+    pass
+
+
+@dataclass(frozen=True)
+class FeatureFrame:
+    """The tracked features of one image.
+
+    Attributes
+    ----------
+    stamp_ns : int
+        Header stamp, int nanoseconds.
+    ids : (N,) int64
+        Feature ids, unique within the frame.
+    uv : (N, 2) float64
+        Pixel coordinates (normalised coordinates if the message carried no pixels).
+    """
+
+    stamp_ns: int
+    ids: np.ndarray
+    uv: np.ndarray
+
+    def __post_init__(self) -> None:
+        if isinstance(self.stamp_ns, bool) or not isinstance(self.stamp_ns, (int, np.integer)):
+            raise InputError(f'stamp_ns must be an int (nanoseconds), got {self.stamp_ns!r}')
+        ids = np.asarray(self.ids)
+        uv = np.asarray(self.uv, dtype=np.float64)
+        if ids.ndim != 1:
+            raise InputError(f'ids must have shape (N,), got {ids.shape}')
+        if uv.shape != (ids.size, 2):
+            raise InputError(f'uv must have shape ({ids.size}, 2) to match ids, got {uv.shape}')
+        ids = decode.integer_ids(ids, 'ids')
+        decode.check_features(ids, uv, 'FeatureFrame')
+        object.__setattr__(self, 'stamp_ns', int(self.stamp_ns))
+        object.__setattr__(self, 'ids', ids)
+        object.__setattr__(self, 'uv', uv)
+
+
+def topics(path: str | Path) -> dict[str, str]:
+    """Topic -> message type (``'sensor_msgs/msg/PointCloud'``...) of the bag at ``path``.
+
+    A topic recorded with several types maps to their names joined by ``'|'``.
+    """
+    with _open(path) as reader:
+        return _topic_types(reader)
+
+
+def read_feature_frames(
+    path: str | Path,
+    topic: str = '/feature_tracker/feature',
+    layout: str = 'auto',
+    camera_id: int = 0,
+) -> Iterator[FeatureFrame]:
+    """Tracked features, one :class:`FeatureFrame` per message, in recording order.
+
+    Parameters
+    ----------
+    path : str or Path
+        ROS 2 bag folder, ``.mcap`` / ``.db3`` file, or ROS 1 ``.bag`` file.
+    topic : str
+        A ``sensor_msgs/msg/PointCloud`` or ``sensor_msgs/msg/PointCloud2`` topic.
+    layout : {'auto', 'vins_mono', 'vins_fusion'}
+        PointCloud channel layout, see :mod:`pearl_ros.bagio.decode`.
+    camera_id : int
+        Camera to keep from a VINS-Fusion cloud.
+
+    Raises
+    ------
+    BagError
+        Missing or corrupt bag, unknown topic (the message lists the bag's topics), wrong message
+        type, malformed message. Checked when called, except damage met while iterating.
+    InputError
+        Bad ``layout`` or ``camera_id``.
+    """
+    layout = decode.check_layout(layout)
+    camera_id = decode.check_camera_id(camera_id)
+    with _open(path) as reader:  # fail now, not at the first next()
+        _connections(reader, path, topic, FEATURE_TYPES)
+    return _iter_frames(path, topic, layout, camera_id)
+
+
+def read_ground_truth(path: str | Path, topic: str = '/ground_truth/labels') -> dict[int, int]:
+    """Feature id -> ground-truth label, merged over every message of ``topic``.
+
+    Each message is a ``sensor_msgs/msg/PointCloud2`` with fields ``id`` (uint32) and ``label``
+    (int32), usually one per frame with that frame's features.
+
+    Raises
+    ------
+    BagError
+        As :func:`read_feature_frames`, and when one id is given two different labels.
+    """
+    truth: dict[int, int] = {}
+    with _open(path) as reader:
+        connections = _connections(reader, path, topic, TRUTH_TYPES)
+        for index, (_, msg) in enumerate(_messages(reader, path, connections)):
+            try:
+                ids, labels = decode.decode_labels(msg)
+            except InputError as err:
+                raise BagError(f'{path}: message {index} on {topic}: {err}') from err
+            for feature, label in zip(ids.tolist(), labels.tolist(), strict=True):
+                if truth.setdefault(feature, label) != label:
+                    raise BagError(
+                        f'{path}: feature {feature} has labels {truth[feature]} and {label} '
+                        f'on {topic}'
+                    )
+    return truth
+
+
+def _iter_frames(
+    path: str | Path, topic: str, layout: str, camera_id: int
+) -> Iterator[FeatureFrame]:
+    with _open(path) as reader:
+        connections = _connections(reader, path, topic, FEATURE_TYPES)
+        for index, (msgtype, msg) in enumerate(_messages(reader, path, connections)):
+            try:
+                if msgtype == POINTCLOUD2:
+                    ids, uv = decode.decode_pointcloud2(msg)
+                else:
+                    ids, uv = decode.decode_pointcloud(msg, layout, camera_id)
+                frame = FeatureFrame(decode.stamp_ns(msg.header), ids, uv)
+            except InputError as err:
+                raise BagError(f'{path}: message {index} on {topic}: {err}') from err
+            yield frame
+
+
+@contextmanager
+def _open(path: str | Path) -> Iterator[AnyReader]:
+    """An open AnyReader on ``path``; every rosbags failure becomes a one-line BagError."""
+    path = Path(path)
+    if not path.exists():
+        raise BagError(f'bag not found: {path}')
+    if path.is_dir() and path.suffix == '.bag':
+        # rosbags takes every *.bag path for a ROS 1 file.
+        raise BagError(
+            f'{path} is a folder named *.bag: rosbags reads *.bag as a ROS 1 bag file; '
+            'rename the ROS 2 bag folder without the .bag suffix'
+        )
+    if path.is_dir() and not (path / 'metadata.yaml').exists():
+        raise BagError(f'{path} is not a ROS 2 bag folder: it has no metadata.yaml')
+    try:
+        reader = AnyReader([path], default_typestore=TYPESTORE)
+        reader.open()
+    except _ROSBAGS_ERRORS as err:
+        raise BagError(f'cannot open bag {path}: {_one_line(err)}') from err
+    try:
+        yield reader
+    finally:
+        reader.close()
+
+
+def _topic_types(reader: AnyReader) -> dict[str, str]:
+    types: dict[str, set[str]] = {}
+    for connection in reader.connections:
+        types.setdefault(connection.topic, set()).add(connection.msgtype)
+    return {topic: '|'.join(sorted(names)) for topic, names in sorted(types.items())}
+
+
+def _connections(
+    reader: AnyReader, path: str | Path, topic: str, allowed: tuple[str, ...]
+) -> list[Any]:
+    """The connections of ``topic``, checked to exist and to carry one of the ``allowed`` types."""
+    connections = [c for c in reader.connections if c.topic == topic]
+    if not connections:
+        listing = ', '.join(f'{name} ({kind})' for name, kind in _topic_types(reader).items())
+        raise BagError(f'{path}: no topic {topic!r}; topics: {listing or "none"}')
+    wrong = sorted({c.msgtype for c in connections} - set(allowed))
+    if wrong:
+        raise BagError(
+            f'{path}: topic {topic} has type {"|".join(wrong)}, expected {" or ".join(allowed)}'
+        )
+    return connections
+
+
+def _messages(reader: AnyReader, path: str | Path, connections: list[Any]) -> Iterator[Any]:
+    """(msgtype, decoded message) pairs; storage and deserialisation failures become BagError."""
+    iterator = reader.messages(connections=connections)
+    while True:
+        try:
+            item = next(iterator, None)
+            if item is None:
+                return
+            connection, _, raw = item
+            msg = reader.deserialize(raw, connection.msgtype)
+        except _ROSBAGS_ERRORS as err:
+            raise BagError(f'cannot read bag {path}: {_one_line(err)}') from err
+        yield connection.msgtype, msg
+
+
+def _one_line(err: BaseException, limit: int = 300) -> str:
+    """``err`` as one line of at most ``limit`` characters (YAML errors span several)."""
+    text = ' '.join(str(err).split()) or type(err).__name__
+    return text if len(text) <= limit else text[: limit - 3] + '...'

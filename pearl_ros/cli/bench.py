@@ -1,0 +1,493 @@
+"""``pearl_bench``: PEaRL on the Hopkins155 motion segmentation benchmark (Tron & Vidal, 2007).
+
+Runs :func:`pearl_ros.core.pearl.fit` on every sequence and prints misclassification statistics
+in the layout of Table 2.2 of the PEaRL thesis (Isack & Boykov, IJCV 2012): rows checkerboard /
+traffic / articulated / all, column groups 2 motions / 3 motions / all, cells mean and median.
+PEaRL finds the number of motions itself, so the share of sequences where it found the true number
+is reported too.
+
+Examples
+--------
+::
+
+    pearl_bench hopkins155 ../shared/data/hopkins155 --frames all --jobs 4 --csv hopkins.csv
+    pearl_bench hopkins155 ../shared/data/hopkins155 --frames two --only 1R2RC cars1
+
+``--set NAME=VALUE`` overrides a field of :class:`PearlConfig` for experiments; reported numbers
+use the defaults.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import csv
+import dataclasses
+import math
+import multiprocessing
+import os
+import statistics
+import sys
+import time
+import typing
+from collections.abc import Iterable, Iterator, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, TextIO
+
+from pearl_ros.core.config import PearlConfig
+from pearl_ros.core.errors import InputError, PearlError
+
+CATEGORIES = ('checkerboard', 'traffic', 'articulated')
+MOTION_GROUPS = (2, 3)  # columns always shown, as in Table 2.2; other counts only under 'all'
+CSV_COLUMNS = (
+    'name',
+    'category',
+    'motions_true',
+    'motions_found',
+    'points',
+    'frames',
+    'error_pct',
+    'seconds',
+    'iterations',
+    'energy',
+)
+# Thread pools of BLAS / OpenMP libraries read these once, when the library is loaded.
+THREAD_VARIABLES = (
+    'OMP_NUM_THREADS',
+    'OPENBLAS_NUM_THREADS',
+    'MKL_NUM_THREADS',
+    'BLIS_NUM_THREADS',
+    'VECLIB_MAXIMUM_THREADS',
+    'NUMEXPR_NUM_THREADS',
+)
+
+
+@dataclass(frozen=True)
+class Row:
+    """The outcome of PEaRL on one sequence (one CSV row).
+
+    Attributes
+    ----------
+    name, category : str
+    motions_true, motions_found : int
+        Ground-truth number of motions; number of models PEaRL kept.
+    points, frames : int
+        Tracked points; frames given to ``fit`` (2 with ``--frames two``).
+    error_pct : float
+        Misclassification, percent of points.
+    seconds : float
+        Wall time of ``fit``, seconds.
+    iterations : int
+    energy : float
+        Final energy (NaN when ``fit`` reports no history).
+    """
+
+    name: str
+    category: str
+    motions_true: int
+    motions_found: int
+    points: int
+    frames: int
+    error_pct: float
+    seconds: float
+    iterations: int
+    energy: float
+
+    def csv_fields(self) -> list[str]:
+        return [
+            self.name,
+            self.category,
+            str(self.motions_true),
+            str(self.motions_found),
+            str(self.points),
+            str(self.frames),
+            f'{self.error_pct:.4f}',
+            f'{self.seconds:.4f}',
+            str(self.iterations),
+            f'{self.energy:.10g}',
+        ]
+
+
+# ----------------------------------------------------------------------------- summary
+
+
+def _cell_stats(values: list[float]) -> dict[str, float | int | None]:
+    if not values:
+        return {'count': 0, 'mean': None, 'median': None}
+    return {
+        'count': len(values),
+        'mean': statistics.fmean(values),
+        'median': float(statistics.median(values)),
+    }
+
+
+def summarise(rows: Iterable[Row], wall_seconds: float | None = None) -> dict[str, Any]:
+    """Benchmark statistics in the layout of Table 2.2, from per-sequence rows.
+
+    Parameters
+    ----------
+    rows : iterable of Row
+    wall_seconds : float, optional
+        Wall time of the whole run, seconds; carried into the summary for :func:`format_table`.
+
+    Returns
+    -------
+    dict
+        ``'groups'``: column keys, ``'2'``, ``'3'`` (plus any other true motion count present)
+        and ``'all'``. ``'error'[category][group]``: ``{'count', 'mean', 'median'}``
+        misclassification in percent, ``None`` for an empty cell; categories are
+        checkerboard, traffic, articulated and ``'all'``. ``'motions_correct'[category][group]``:
+        ``{'count', 'correct', 'share'}`` with share in percent of sequences where the number of
+        models found equals the true number of motions (``None`` if empty). ``'seconds'``:
+        ``{'mean', 'median', 'max', 'total'}`` over sequences (``None`` values if no rows).
+        ``'count'``: number of rows. ``'wall_seconds'``: as given.
+    """
+    rows = list(rows)
+    counts = sorted(set(MOTION_GROUPS) | {r.motions_true for r in rows})
+    groups = [str(k) for k in counts] + ['all']
+    categories = [*CATEGORIES, *sorted({r.category for r in rows} - set(CATEGORIES)), 'all']
+
+    def select(category: str, group: str) -> list[Row]:
+        return [
+            r
+            for r in rows
+            if category in ('all', r.category) and group in ('all', str(r.motions_true))
+        ]
+
+    error: dict[str, dict[str, Any]] = {}
+    correct: dict[str, dict[str, Any]] = {}
+    for category in categories:
+        error[category] = {}
+        correct[category] = {}
+        for group in groups:
+            cell = select(category, group)
+            error[category][group] = _cell_stats([r.error_pct for r in cell])
+            hits = sum(r.motions_found == r.motions_true for r in cell)
+            correct[category][group] = {
+                'count': len(cell),
+                'correct': hits,
+                'share': 100.0 * hits / len(cell) if cell else None,
+            }
+    seconds = [r.seconds for r in rows]
+    return {
+        'groups': groups,
+        'categories': categories,
+        'error': error,
+        'motions_correct': correct,
+        'seconds': {
+            'mean': statistics.fmean(seconds) if seconds else None,
+            'median': float(statistics.median(seconds)) if seconds else None,
+            'max': max(seconds) if seconds else None,
+            'total': math.fsum(seconds),
+        },
+        'count': len(rows),
+        'wall_seconds': wall_seconds,
+    }
+
+
+def _num(value: float | None, spec: str = '.2f') -> str:
+    return '-' if value is None else format(value, spec)
+
+
+def format_table(summary: dict[str, Any], title: str | None = None) -> str:
+    """Text tables of a :func:`summarise` result: errors as in Table 2.2, then counts and times.
+
+    Empty cells print as ``-``. Every error cell is ``mean median`` in percent, with the number
+    of sequences ``n`` in the cell.
+    """
+    groups = summary['groups']
+    categories = summary['categories']
+    label_width = max(12, *(len(c) for c in categories))
+    cell_width = 22  # '  n   mean  median' plus gaps
+    heads = [f'{g} motions' if g != 'all' else 'all' for g in groups]
+    lines: list[str] = []
+    if title:
+        lines += [title, '']
+    lines.append('Misclassification (%)')
+    lines.append(' ' * label_width + ''.join(h.rjust(cell_width) for h in heads))
+    sub = f'{"n":>4} {"mean":>7} {"median":>7}'
+    lines.append(' ' * label_width + ''.join(sub.rjust(cell_width) for _ in groups))
+    for category in categories:
+        cells = []
+        for group in groups:
+            stats = summary['error'][category][group]
+            text = f'{stats["count"]:>4} {_num(stats["mean"]):>7} {_num(stats["median"]):>7}'
+            cells.append(text.rjust(cell_width))
+        lines.append(category.ljust(label_width) + ''.join(cells))
+    lines.append('')
+    lines.append('Number of motions found correctly (% of sequences)')
+    lines.append(' ' * label_width + ''.join(h.rjust(cell_width) for h in heads))
+    for category in categories:
+        cells = []
+        for group in groups:
+            stats = summary['motions_correct'][category][group]
+            frac = f'({stats["correct"]}/{stats["count"]})'
+            text = f'{_num(stats["share"], ".1f"):>6} {frac:>9}'
+            cells.append(text.rjust(cell_width))
+        lines.append(category.ljust(label_width) + ''.join(cells))
+    lines.append('')
+    secs = summary['seconds']
+    lines.append(
+        f'Seconds per sequence: mean {_num(secs["mean"])}, median {_num(secs["median"])}, '
+        f'max {_num(secs["max"])} ({summary["count"]} sequences)'
+    )
+    if summary.get('wall_seconds') is not None:
+        lines.append(f'Total wall time: {summary["wall_seconds"]:.1f} s')
+    return '\n'.join(lines)
+
+
+# ----------------------------------------------------------------------------- running
+
+
+def parse_overrides(items: Sequence[str]) -> dict[str, Any]:
+    """``NAME=VALUE`` strings to PearlConfig field values, parsed to each field's type.
+
+    Raises
+    ------
+    InputError
+        On a malformed item, an unknown field name or a value of the wrong type.
+    """
+    hints = typing.get_type_hints(PearlConfig)
+    out: dict[str, Any] = {}
+    for item in items:
+        name, sep, text = item.partition('=')
+        name = name.strip()
+        if not sep or not name:
+            raise InputError(f'--set expects NAME=VALUE, got {item!r}')
+        if name not in hints:
+            known = ', '.join(PearlConfig.field_names())
+            raise InputError(f'unknown parameter {name!r} (known: {known})')
+        kind = hints[name]
+        try:
+            if kind is bool:
+                lowered = text.strip().lower()
+                if lowered not in ('true', 'false', '1', '0', 'yes', 'no'):
+                    raise ValueError(text)
+                value: Any = lowered in ('true', '1', 'yes')
+            elif kind in (int, float, str):
+                value = kind(text.strip()) if kind is not str else text
+            else:  # pragma: no cover - every PearlConfig field is a plain scalar today
+                raise InputError(f'parameter {name!r} of type {kind} cannot be set from the CLI')
+        except ValueError as err:
+            raise InputError(f'invalid value for {name}: {text!r} is not {kind.__name__}') from err
+        out[name] = value
+    return out
+
+
+@dataclass(frozen=True)
+class _Task:
+    root: str
+    name: str
+    index: int  # position in the full sorted list of the folder: fixes the seed of the sequence
+    seed: int
+    frames: str
+    config: PearlConfig
+
+
+def _run_one(task: _Task) -> Row:
+    """Fit one sequence; top level so that worker processes can import it."""
+    import numpy as np
+
+    from pearl_ros.core.metrics import misclassification
+    from pearl_ros.core.pearl import fit
+    from pearl_ros.datasets.hopkins import load_sequence
+
+    try:
+        seq = load_sequence(task.root, task.name)
+        tracks = seq.tracks[[0, -1]] if task.frames == 'two' else seq.tracks
+        # The seed of a sequence depends on --seed and its index only, never on the worker.
+        rng = np.random.default_rng(np.random.SeedSequence([task.seed, task.index]))
+        start = time.perf_counter()
+        result = fit(tracks, config=task.config, rng=rng)
+        seconds = time.perf_counter() - start
+        error = misclassification(result.labels, seq.labels)
+    except PearlError as err:
+        raise type(err)(f'{task.name}: {err}') from err
+    history = list(result.energy_history)
+    return Row(
+        name=seq.name,
+        category=seq.category,
+        motions_true=seq.num_motions,
+        motions_found=int(result.num_models),
+        points=int(seq.tracks.shape[1]),
+        frames=int(tracks.shape[0]),
+        error_pct=100.0 * error,
+        seconds=seconds,
+        iterations=int(result.iterations),
+        energy=float(history[-1]) if history else math.nan,
+    )
+
+
+@contextlib.contextmanager
+def _single_threaded_children() -> Iterator[None]:
+    """Make processes started inside the block load BLAS / OpenMP with one thread.
+
+    Worker processes are *spawned* (fresh interpreters), so they import numpy after these
+    variables are set; forked workers would inherit the parent's already loaded thread pools.
+    """
+    saved = {name: os.environ.get(name) for name in THREAD_VARIABLES}
+    os.environ.update({name: '1' for name in THREAD_VARIABLES})
+    try:
+        yield
+    finally:
+        for name, value in saved.items():
+            if value is None:
+                os.environ.pop(name, None)
+            else:
+                os.environ[name] = value
+
+
+def run(tasks: Sequence[_Task], jobs: int) -> Iterator[Row]:
+    """Rows of ``tasks`` in order, from ``jobs`` worker processes (none if ``jobs`` is 1)."""
+    if jobs <= 1 or len(tasks) <= 1:
+        for task in tasks:
+            yield _run_one(task)
+        return
+    context = multiprocessing.get_context('spawn')
+    with _single_threaded_children():
+        pool = context.Pool(processes=min(jobs, len(tasks)))
+    with pool:
+        yield from pool.imap(_run_one, tasks, chunksize=1)
+
+
+class _Progress:
+    """``[#####.....] 37/155 name`` on a terminal, one short line per sequence otherwise."""
+
+    def __init__(self, total: int, stream: TextIO, width: int = 30) -> None:
+        self.total = total
+        self.stream = stream
+        self.width = width
+        self.tty = stream.isatty()
+
+    def update(self, done: int, row: Row) -> None:
+        if self.tty:
+            filled = self.width * done // max(self.total, 1)
+            bar = '#' * filled + '.' * (self.width - filled)
+            self.stream.write(f'\r[{bar}] {done}/{self.total} {row.name[:30]:<30}')
+            if done == self.total:
+                self.stream.write('\n')
+        else:
+            self.stream.write(
+                f'[{done:>{len(str(self.total))}}/{self.total}] {row.name} '
+                f'{row.error_pct:.2f}% {row.seconds:.2f}s\n'
+            )
+        self.stream.flush()
+
+
+class _Parser(argparse.ArgumentParser):
+    """Usage errors raise InputError, so that main prints one ``error:`` line and returns 1."""
+
+    def error(self, message: str) -> typing.NoReturn:
+        raise InputError(message)
+
+
+def _build_parser() -> argparse.ArgumentParser:
+    parser = _Parser(
+        prog='pearl_bench', description='Benchmark PEaRL motion segmentation on a dataset.'
+    )
+    commands = parser.add_subparsers(dest='dataset', metavar='DATASET', required=True)
+    hop = commands.add_parser(
+        'hopkins155',
+        help='Hopkins155: 155 sequences of tracked points with ground-truth motions',
+        description='Run PEaRL on every Hopkins155 sequence (dancing left out) and print '
+        'misclassification statistics as in Table 2.2 of the PEaRL thesis.',
+    )
+    hop.add_argument('path', metavar='PATH', help='folder with one sub-folder per sequence')
+    hop.add_argument(
+        '--frames',
+        choices=('all', 'two'),
+        default='all',
+        help='all frames with the affine model (default), or the first and last frame with '
+        'the fundamental model',
+    )
+    hop.add_argument('--jobs', type=int, default=1, metavar='N', help='worker processes')
+    hop.add_argument('--csv', metavar='FILE', help='write one row per sequence to FILE')
+    hop.add_argument('--seed', type=int, default=0, help='base random seed (default 0)')
+    hop.add_argument('--only', nargs='+', metavar='NAME', help='run these sequences only')
+    hop.add_argument(
+        '--set',
+        action='append',
+        default=[],
+        metavar='NAME=VALUE',
+        help='override a PearlConfig field, for experiments (repeatable)',
+    )
+    return parser
+
+
+def _hopkins155(args: argparse.Namespace) -> int:
+    from pearl_ros.datasets.hopkins import sequence_names
+
+    if args.jobs < 1:
+        raise InputError(f'--jobs must be >= 1, got {args.jobs}')
+    overrides = parse_overrides(args.set)
+    model = 'affine' if args.frames == 'all' else 'fundamental'
+    config = dataclasses.replace(PearlConfig(model=model), **overrides)
+
+    root = Path(args.path)
+    everything = sequence_names(root, include_dancing=True)
+    index = {name: i for i, name in enumerate(everything)}
+    if args.only:
+        unknown = [name for name in args.only if name not in index]
+        if unknown:
+            raise InputError(f'unknown sequence(s) in {root}: {", ".join(unknown)}')
+        names = list(dict.fromkeys(args.only))
+    else:
+        names = sequence_names(root)
+    if not names:
+        raise InputError(f'no Hopkins155 sequences (*/*_truth.mat) in {root}')
+    tasks = [_Task(str(root), name, index[name], args.seed, args.frames, config) for name in names]
+
+    csv_file = None
+    if args.csv:
+        try:
+            csv_file = open(args.csv, 'w', newline='', encoding='utf-8')  # noqa: SIM115
+        except OSError as err:
+            raise InputError(f'cannot write {args.csv}: {err.strerror}') from err
+    try:
+        writer = csv.writer(csv_file) if csv_file else None
+        if writer:
+            writer.writerow(CSV_COLUMNS)
+        progress = _Progress(len(tasks), sys.stderr)
+        rows: list[Row] = []
+        start = time.perf_counter()
+        for row in run(tasks, args.jobs):
+            rows.append(row)
+            if writer and csv_file:
+                writer.writerow(row.csv_fields())
+                csv_file.flush()
+            progress.update(len(rows), row)
+        wall = time.perf_counter() - start
+    finally:
+        if csv_file:
+            csv_file.close()
+
+    title = (
+        f'PEaRL on Hopkins155 ({root}): {args.frames} frames, model {config.model}, '
+        f'seed {args.seed}'
+    )
+    if overrides:
+        title += ', ' + ', '.join(f'{k}={v}' for k, v in overrides.items())
+    print(format_table(summarise(rows, wall_seconds=wall), title=title))
+    return 0
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point of ``pearl_bench``; returns the exit code."""
+    try:
+        args = _build_parser().parse_args(argv)
+        return _hopkins155(args)
+    except PearlError as err:
+        print(f'error: {err}', file=sys.stderr)
+        return 1
+    except KeyboardInterrupt:
+        print('error: interrupted', file=sys.stderr)
+        return 1
+    except BrokenPipeError:  # output piped into e.g. head: stop quietly, as other tools do
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+        return 1
+
+
+if __name__ == '__main__':
+    sys.exit(main())

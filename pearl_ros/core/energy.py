@@ -1,0 +1,43 @@
+"""The PEaRL energy, kept apart from its optimiser so that "it never goes up" can be tested.
+
+    E(f) = sum_p D_p(f_p) + sum_{(p,q) in N} w_pq [f_p != f_q] + sum_{l in f} h_l
+
+(Isack & Boykov, IJCV 2012, eq. 1; label costs h after Delong et al., IJCV 2012). Labels are rows of
+the unary table ``unary`` (L, N); the weights ``w`` already hold the smoothness factor lambda.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class Problem:
+    """A labelling problem.
+
+    Attributes
+    ----------
+    unary : (L, N) float64, cost of giving point p label l (>= 0)
+    edges : (E, 2) int, neighbour pairs
+    weights : (E,) float64, Potts weight of each pair, lambda included (>= 0)
+    label_costs : (L,) float64, cost of each label in use (>= 0)
+    """
+
+    unary: np.ndarray
+    edges: np.ndarray
+    weights: np.ndarray
+    label_costs: np.ndarray
+
+    @property
+    def num_points(self) -> int:
+        return int(self.unary.shape[1])
+
+
+def energy(problem: Problem, labels: np.ndarray) -> float:
+    """E(f) of ``labels`` (N,) int, indices into the rows of ``problem.unary``."""
+    data = problem.unary[labels, np.arange(labels.size)].sum()
+    p, q = problem.edges[:, 0], problem.edges[:, 1]
+    smooth = problem.weights[labels[p] != labels[q]].sum()
+    return float(data + smooth + problem.label_costs[np.unique(labels)].sum())

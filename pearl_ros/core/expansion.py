@@ -1,0 +1,83 @@
+"""Alpha-expansion with Potts smoothness and label costs (Delong, Osokin, Isack & Boykov, IJCV 2012).
+
+One move lets every point either keep its label or switch to ``alpha``; the optimal move is a
+minimum s-t cut. Side convention, used throughout: a node on the SINK side has x = 1, "switch to
+alpha"; so the source capacity of a node is its cost of switching and the sink capacity its cost
+of keeping (a cut pays the s-link of a sink-side node and the t-link of a source-side node).
+"""
+
+from __future__ import annotations
+
+import maxflow
+import numpy as np
+
+from pearl_ros.core.energy import Problem
+
+
+def expansion_move(problem: Problem, labels: np.ndarray, alpha: int) -> np.ndarray:
+    """The labelling of least energy among those one alpha-expansion away from ``labels``."""
+    n = labels.size
+    unary = problem.unary
+    cost_keep = unary[labels, np.arange(n)]
+    cost_switch = unary[alpha].astype(np.float64, copy=True)
+    src = cost_switch  # paid when x_p = 1
+    snk = cost_keep.copy()  # paid when x_p = 0
+
+    # Pairwise Potts terms E(x_p, x_q) = A + (C - A) x_p + (D - C) x_q + (B + C - A - D)(1 - x_p) x_q
+    # with A = E00, B = E01, C = E10, D = E11 = 0 (Kolmogorov & Zabih 2004).
+    p, q = problem.edges[:, 0], problem.edges[:, 1]
+    a, b, w = labels[p], labels[q], problem.weights
+    e00 = w * (a != b)
+    e01 = w * (a != alpha)
+    e10 = w * (b != alpha)
+    _add_unary(src, snk, p, e10 - e00)
+    _add_unary(src, snk, q, -e10)
+    pair = e01 + e10 - e00  # >= 0 for the Potts metric: the move is submodular
+
+    # Label costs. A used label l != alpha is paid unless all its points switch: an auxiliary
+    # node y_l that can sit on the sink side ("l is gone", no cost) only if every point of l does.
+    # An unused alpha is paid once any point switches: an auxiliary z on the sink side ("alpha
+    # is used") that every switching point drags along.
+    costs = problem.label_costs
+    used = np.unique(labels)
+    paid = used[(used != alpha) & (costs[used] > 0)]
+    new_alpha = costs[alpha] > 0 and not np.any(labels == alpha)
+    num_aux = paid.size + int(new_alpha)
+    big = float(unary.sum() + w.sum() + costs.sum() + 1.0)  # stands for infinity
+
+    order = np.argsort(labels, kind='stable')
+    starts = np.searchsorted(labels[order], paid)
+    ends = np.searchsorted(labels[order], paid, side='right')
+    members = [order[s:e] for s, e in zip(starts, ends)]
+    num_edges = p.size + sum(m.size for m in members) + (n if new_alpha else 0)
+
+    graph = maxflow.Graph[float](n + num_aux, num_edges)
+    nodes = graph.add_nodes(n + num_aux)
+    keep = pair > 0
+    graph.add_edges(nodes[p[keep]], nodes[q[keep]], pair[keep], np.zeros(int(keep.sum())))
+    aux_src = np.zeros(num_aux)
+    aux_snk = np.zeros(num_aux)
+    for k, (label, pts) in enumerate(zip(paid, members)):
+        aux_snk[k] = costs[label]
+        # x_p = 0 (source side) with y_l = 1 (sink side) would cut p -> y_l: forbidden.
+        graph.add_edges(pts, np.full(pts.size, n + k), np.full(pts.size, big), np.zeros(pts.size))
+    if new_alpha:
+        z = n + num_aux - 1
+        aux_src[-1] = costs[alpha]
+        # z = 0 (source side) with x_p = 1 (sink side) would cut z -> p: forbidden.
+        graph.add_edges(np.full(n, z), nodes[:n], np.full(n, big), np.zeros(n))
+    graph.add_grid_tedges(nodes, np.concatenate([src, aux_src]), np.concatenate([snk, aux_snk]))
+    graph.maxflow()
+    switch = graph.get_grid_segments(nodes[:n])
+    return np.where(switch, alpha, labels)
+
+
+def _add_unary(src: np.ndarray, snk: np.ndarray, nodes: np.ndarray, coef: np.ndarray) -> None:
+    """Add ``coef * x`` for each node: positive to the switch cost, negative to the keep cost.
+
+    ``u x = u`` paid at x = 1 when u >= 0; for u < 0, ``u x = u + |u| (1 - x)``, and the constant
+    ``u`` shifts every labelling alike, so it is dropped.
+    """
+    n = src.size
+    src += np.bincount(nodes, weights=np.maximum(coef, 0.0), minlength=n)
+    snk += np.bincount(nodes, weights=np.maximum(-coef, 0.0), minlength=n)

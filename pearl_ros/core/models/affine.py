@@ -1,0 +1,83 @@
+"""Affine motion subspaces over N frames.
+
+Under an affine camera the trajectories of the points of one rigid body, stacked as vectors of
+R^(2F), lie in a 4-D linear subspace that contains the common translation; equivalently, in a 3-D
+*affine* subspace (Tomasi & Kanade 1992; Tron & Vidal 2007). A hypothesis here is that 3-D affine
+subspace: a point ``m`` and an orthonormal basis ``B`` (2F x 3), fitted from 4 trajectories.
+
+The PEaRL thesis (Isack, sec. 2.3.3) projects trajectories to R^5 and fits 4-D hyperplanes there.
+Measuring the distance in the full R^(2F) keeps every frame's evidence, and scaling it by
+1/sqrt(F) turns it into a per-frame RMS image distance in pixels, the unit every model shares.
+"""
+
+from __future__ import annotations
+
+from typing import ClassVar
+
+import numpy as np
+
+from pearl_ros.core.errors import InputError
+
+# A sample whose 3 difference vectors have a singular value below this share of the largest
+# spans less than 3 dimensions: its subspace is not determined.
+_RANK_TOL = 1e-6
+
+
+def check_tracks(tracks: np.ndarray, min_frames: int = 1) -> np.ndarray:
+    """Validate ``tracks`` (F, N, 2) pixels; returns it as float64."""
+    tracks = np.asarray(tracks, dtype=np.float64)
+    if tracks.ndim != 3 or tracks.shape[2] != 2:
+        raise InputError(f'tracks must have shape (F, N, 2), got {tracks.shape}')
+    if tracks.shape[0] < min_frames:
+        raise InputError(f'tracks must have at least {min_frames} frames, got {tracks.shape[0]}')
+    if not np.all(np.isfinite(tracks)):
+        raise InputError('tracks must be finite (no NaN or inf coordinates)')
+    return tracks
+
+
+class AffineSubspace:
+    """3-D affine subspaces of trajectory space; params ``(K, 2F, 4)``: mean, then basis."""
+
+    name: ClassVar[str] = 'affine'
+    min_samples = 4
+    dim = 3
+
+    def data(self, tracks: np.ndarray) -> np.ndarray:
+        """Trajectories ``(N, 2F)`` scaled by 1/sqrt(F), so distances are RMS pixels per frame."""
+        tracks = check_tracks(tracks, min_frames=2)
+        num_frames, num_points, _ = tracks.shape
+        rows = np.transpose(tracks, (1, 0, 2)).reshape(num_points, 2 * num_frames)
+        return rows / np.sqrt(num_frames)
+
+    def fit_minimal(self, data: np.ndarray, samples: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        pts = data[samples]  # (K, 4, D)
+        origin = pts[:, 0, :]
+        diffs = np.transpose(pts[:, 1:, :] - origin[:, None, :], (0, 2, 1))  # (K, D, 3)
+        basis, r = np.linalg.qr(diffs)
+        diag = np.abs(np.diagonal(r, axis1=1, axis2=2))
+        ok = diag.min(axis=1) > _RANK_TOL * np.maximum(diag.max(axis=1), 1e-12)
+        # The origin of the minimal subspace is the sample mean: its residuals are symmetric.
+        return np.concatenate([pts.mean(axis=1)[:, :, None], basis], axis=2), ok
+
+    def refit(self, data: np.ndarray, inliers: np.ndarray, params: np.ndarray) -> np.ndarray | None:
+        """Least-squares subspace of the inliers (principal components): optimal for sum r^2."""
+        pts = data[inliers]
+        if pts.shape[0] < self.min_samples:
+            return None
+        mean = pts.mean(axis=0)
+        _, s, vt = np.linalg.svd(pts - mean, full_matrices=False)
+        if s.size < self.dim or s[self.dim - 1] <= _RANK_TOL * max(s[0], 1e-12):
+            return None
+        return np.concatenate([mean[:, None], vt[: self.dim].T], axis=1)
+
+    def residuals(self, data: np.ndarray, params: np.ndarray) -> np.ndarray:
+        params = np.asarray(params)
+        if params.ndim == 2:
+            params = params[None]
+        mean, basis = params[:, :, 0], params[:, :, 1:]
+        # ||x - m||^2 - ||B^T (x - m)||^2, expanded so that no (K, N, D) array is formed.
+        x_sq = np.einsum('nd,nd->n', data, data)
+        dist_sq = x_sq[None, :] - 2.0 * mean @ data.T + np.einsum('kd,kd->k', mean, mean)[:, None]
+        proj = np.einsum('kdj,nd->kjn', basis, data) - np.einsum('kdj,kd->kj', basis, mean)[:, :, None]
+        dist_sq -= np.einsum('kjn,kjn->kn', proj, proj)
+        return np.sqrt(np.maximum(dist_sq, 0.0))

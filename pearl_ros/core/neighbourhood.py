@@ -1,0 +1,39 @@
+"""Neighbourhood systems over the features of one frame."""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.spatial import Delaunay, QhullError, cKDTree
+
+
+def delaunay_edges(points: np.ndarray) -> np.ndarray:
+    """Unique undirected edges ``(E, 2)`` int (i < j) of the Delaunay triangulation of ``points``.
+
+    Fewer than 3 points, or points all on a line, give the chain of neighbours in sorted order,
+    so that smoothness still links every feature.
+    """
+    points = np.asarray(points, dtype=np.float64)
+    n = points.shape[0]
+    if n < 2:
+        return np.empty((0, 2), dtype=np.int64)
+    try:
+        tri = Delaunay(points)
+        simplices = tri.simplices
+    except (QhullError, ValueError):
+        order = np.lexsort(points.T[::-1])
+        return np.sort(np.stack([order[:-1], order[1:]], axis=1), axis=1).astype(np.int64)
+    pairs = np.concatenate([simplices[:, [0, 1]], simplices[:, [1, 2]], simplices[:, [0, 2]]])
+    pairs = np.sort(pairs, axis=1)
+    # Coincident points are dropped by qhull: they are joined to nothing, which is harmless.
+    return np.unique(pairs, axis=0).astype(np.int64)
+
+
+def nearest_neighbours(points: np.ndarray, k: int) -> np.ndarray:
+    """Indices ``(N, k')`` of the k' = min(k, N - 1) nearest other points of each point."""
+    points = np.asarray(points, dtype=np.float64)
+    n = points.shape[0]
+    k = min(k, n - 1)
+    if k < 1:
+        return np.empty((n, 0), dtype=np.int64)
+    _, idx = cKDTree(points).query(points, k=k + 1)
+    return idx[:, 1:].astype(np.int64)

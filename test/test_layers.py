@@ -1,0 +1,56 @@
+"""The layers hold: core, online, bag I/O, datasets and make_bag import without rclpy."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+MODULES = (
+    'pearl_ros.core',
+    'pearl_ros.core.config',
+    'pearl_ros.online',
+    'pearl_ros.bagio.reader',
+    'pearl_ros.bagio.writer',
+    'pearl_ros.bagio.decode',
+    'pearl_ros.datasets.hopkins',
+    'pearl_ros.cli.make_bag',
+)
+
+# A finder first on sys.meta_path records every attempt to import ROS client code, so even an
+# import guarded by try/except ImportError (where rclpy is not installed) is caught.
+PROGRAM = f"""
+import importlib, sys
+attempts = []
+class Tripwire:
+    def find_spec(self, name, path=None, target=None):
+        if name.split('.')[0] in ('rclpy', 'rosidl_runtime_py', 'sensor_msgs', 'std_msgs'):
+            attempts.append(name)
+        return None
+sys.meta_path.insert(0, Tripwire())
+for name in {MODULES!r}:
+    importlib.import_module(name)
+assert 'rclpy' not in sys.modules, 'rclpy imported'
+assert not attempts, attempts
+print('ok')
+"""
+
+
+def test_ros_free_layers_import_without_rclpy() -> None:
+    done = subprocess.run(
+        [sys.executable, '-c', PROGRAM], capture_output=True, text=True, check=False
+    )
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.strip() == 'ok'
+
+
+def test_the_tripwire_catches_a_guarded_rclpy_import() -> None:
+    # The check above must be able to fail: a module that tries rclpy trips it.
+    program = PROGRAM.replace("print('ok')", '') + (
+        '\ntry:\n    import rclpy\nexcept ImportError:\n    pass\n'
+        "assert attempts == ['rclpy'], attempts\nprint('tripped')\n"
+    )
+    done = subprocess.run(
+        [sys.executable, '-c', program], capture_output=True, text=True, check=False
+    )
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.strip() == 'tripped'
