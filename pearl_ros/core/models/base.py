@@ -32,7 +32,9 @@ class MotionModel(Protocol):
         """Per-point rows ``(N, D)`` from ``tracks`` ``(F, N, 2)`` in pixels."""
         ...
 
-    def fit_minimal(self, data: np.ndarray, samples: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def fit_minimal(
+        self, data: np.ndarray, samples: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
         """Fit one hypothesis per row of ``samples`` ``(K, min_samples)`` int.
 
         Returns ``params`` ``(K, ...)`` and ``ok`` ``(K,)`` bool; rows with ``ok`` False are
