@@ -18,8 +18,9 @@ class PearlConfig:
     """
 
     model: str = 'affine'  # motion model: affine | fundamental | homography
-    noise: float = 1.0  # px, scale of inlier residuals
-    outlier_threshold: float = 5.0  # px, residual above which the outlier label is cheaper
+    noise: float = 0.0  # px, scale of inlier residuals; 0 = estimated from the data
+    min_noise: float = 0.05  # px, floor of the estimated scale
+    outlier_threshold: float = 6.0  # noise scales, residual above which the outlier label is cheaper
     smoothness: float = 2.0  # lambda, cost units per cut neighbour edge of unit weight
     label_cost: float = 40.0  # beta, cost units per model in use
     num_proposals: int = 200  # fresh minimal samples per proposal round
@@ -31,12 +32,12 @@ class PearlConfig:
     def __post_init__(self) -> None:
         if self.model not in MODEL_NAMES:
             raise InputError(f'model must be one of {MODEL_NAMES}, got {self.model!r}')
-        positive = ('noise', 'outlier_threshold')
+        positive = ('min_noise', 'outlier_threshold')
         for name in positive:
             value = getattr(self, name)
             if not value > 0:
                 raise InputError(f'{name} must be > 0, got {value!r}')
-        for name in ('smoothness', 'label_cost'):
+        for name in ('noise', 'smoothness', 'label_cost'):
             value = getattr(self, name)
             if not value >= 0:
                 raise InputError(f'{name} must be >= 0, got {value!r}')

@@ -20,12 +20,16 @@ from pearl_ros.core.energy import Problem, energy
 from pearl_ros.core.expansion import expansion_move
 from pearl_ros.core.models import MotionModel, get_model
 from pearl_ros.core.neighbourhood import delaunay_edges, nearest_neighbours
-from pearl_ros.core.proposals import mixed_samples
+from pearl_ros.core.proposals import mixed_samples, uniform_samples
+from pearl_ros.core.scale import local_scale
 from pearl_ros.core.errors import InputError
 
 OUTLIER = 0
 _NEIGHBOURS = 10  # image neighbours a local sample is drawn from
 _MAX_PASSES = 5  # expansion passes over the labels within one sweep
+_FLOOR = 0.5  # least model noise level, in units of the fresh-proposal level
+_SEGMENT_SAMPLES = 20
+_PROPOSAL_LEVELS = (1.0, 2.0, 4.0)  # noise levels of a fresh hypothesis, in units of scale  # minimal samples drawn inside each current segment per round
 
 
 @dataclass(frozen=True)
@@ -36,27 +40,51 @@ class PearlResult:
     ----------
     labels : (N,) int64, model index 0..K-1 of each point, -1 for outliers
     params : (K, ...) float64, parameters of model k (layout set by the model)
+    sigmas : (K,) float64, pixels, noise level of model k
     energy : float, final energy
     energy_history : tuple of float, energy after every expand / re-estimate iteration
     iterations : int, expand / re-estimate iterations run
     timings : dict of str to float, seconds per step
+    scale : float, pixels, the residual scale the data costs were measured in
     """
 
     labels: np.ndarray
     params: np.ndarray
+    sigmas: np.ndarray
     energy: float
     energy_history: tuple[float, ...]
     iterations: int
     timings: dict[str, float] = field(default_factory=dict)
+    scale: float = 1.0
 
     @property
     def num_models(self) -> int:
         return int(self.params.shape[0])
 
 
-def data_costs(residuals: np.ndarray, config: PearlConfig) -> np.ndarray:
-    """D_p(l) = (r / noise)^2: the negative log-likelihood of Gaussian residuals, up to a constant."""
-    return np.square(residuals / config.noise)
+def data_costs(residuals: np.ndarray, sigmas: np.ndarray, dof: float, floor: float) -> np.ndarray:
+    """D_p(l) = r^2 / sigma_l^2 + 2 dof log(sigma_l / floor), rows ``(K, N)``.
+
+    Twice the negative log-likelihood of Gaussian residuals with a noise level sigma_l of each
+    model's own, per unit of dof, up to a constant: a model of a motion tracked less precisely
+    (a small, far or non-rigid object, stronger perspective) is not forced into the noise level of
+    the background. Every sigma_l >= floor, so every cost is >= 0, as graph capacities must be.
+    """
+    sigmas = np.asarray(sigmas, dtype=np.float64)[:, None]
+    return np.square(residuals) / np.square(sigmas) + 2.0 * dof * np.log(sigmas / floor)
+
+
+def noise_level(residuals: np.ndarray, dof: float, floor: float, min_samples: int) -> float | None:
+    """Noise level sigma of a model fitted to its members' ``residuals``, at least ``floor``.
+
+    The fit itself absorbs about ``min_samples`` points' worth of residual, so the sum of squares
+    is shared among the others only (the n - p of an unbiased variance): a model fitted to its
+    own minimal sample claims no precision at all, and None is returned.
+    """
+    spare = residuals.size - min_samples
+    if spare <= 0:
+        return None
+    return float(max(np.sqrt(np.sum(np.square(residuals)) / (dof * spare)), floor))
 
 
 def sweep(problem: Problem, labels: np.ndarray) -> np.ndarray:
@@ -92,6 +120,37 @@ def sweep(problem: Problem, labels: np.ndarray) -> np.ndarray:
     return labels
 
 
+@dataclass(frozen=True)
+class _Setting:
+    """What stays fixed while PEaRL runs on one set of tracks."""
+
+    model: MotionModel
+    data: np.ndarray  # (N, D) model data rows
+    edges: np.ndarray  # (E, 2) Delaunay neighbours in the last frame
+    weights: np.ndarray  # (E,) lambda * w_pq
+    neighbours: np.ndarray  # (N, k) image neighbours, for local samples
+    scale: float  # px, noise level of a fresh proposal (estimated or given)
+    floor: float  # px, least noise level a model may claim
+    dof: float  # E[r^2] / sigma^2 of the model's residuals
+    outlier_cost: float
+    label_cost: float
+
+    def costs(self, params: np.ndarray, sigmas: np.ndarray) -> np.ndarray:
+        """Data cost rows ``(K, N)`` of models ``params`` with noise levels ``sigmas`` (K,)."""
+        residuals = self.model.residuals(self.data, params)
+        return data_costs(residuals, sigmas, self.dof, self.floor)
+
+    def unary(self, params: np.ndarray, sigmas: np.ndarray) -> np.ndarray:
+        """Data costs ``(1 + K, N)``: the outlier row, then one row per model."""
+        n = self.data.shape[0]
+        return np.vstack([np.full((1, n), self.outlier_cost), self.costs(params, sigmas)])
+
+    def problem(self, unary: np.ndarray) -> Problem:
+        costs = np.full(unary.shape[0], self.label_cost)
+        costs[OUTLIER] = 0.0
+        return Problem(unary, self.edges, self.weights, costs)
+
+
 def fit(
     tracks: np.ndarray,
     config: PearlConfig | None = None,
@@ -112,65 +171,107 @@ def fit(
     """
     config = config or PearlConfig()
     rng = np.random.default_rng(rng)
-    model = get_model(config.model)
-    timings = {'propose': 0.0, 'expand': 0.0, 'refit': 0.0}
-    data = model.data(tracks)
+    timings = {'setup': 0.0, 'propose': 0.0, 'expand': 0.0, 'refit': 0.0}
+    start = time.perf_counter()
+    setting = _setting(tracks, config, rng)
+    timings['setup'] = time.perf_counter() - start
+    model, data = setting.model, setting.data
     n = data.shape[0]
-    if n < model.min_samples:
-        raise InputError(f'tracks must hold at least {model.min_samples} points for '
-                         f'model {config.model!r}, got {n}')
-    anchor = np.asarray(tracks, dtype=np.float64)[-1]
-    edges = delaunay_edges(anchor)
-    weights = np.full(edges.shape[0], config.smoothness)
-    neighbours = nearest_neighbours(anchor, _NEIGHBOURS)
-    outlier_cost = (config.outlier_threshold / config.noise) ** 2
 
     params = np.empty((0,) + _param_shape(model, data))
+    sigmas = np.empty(0)
     labels = np.full(n, OUTLIER, dtype=np.int64)
     history: list[float] = []
     iterations = 0
     for _ in range(config.rounds):
         start = time.perf_counter()
-        samples = mixed_samples(n, neighbours, config.num_proposals, model.min_samples,
-                                config.local_sampling, rng)
-        fresh, ok = model.fit_minimal(data, samples)
-        params = np.concatenate([params, fresh[ok]], axis=0)
-        unary = np.vstack([np.full((1, n), outlier_cost),
-                           data_costs(model.residuals(data, params), config)])
-        costs = np.full(unary.shape[0], config.label_cost)
-        costs[OUTLIER] = 0.0
+        fresh, fresh_sigmas = _propose(setting, labels, params, config, rng)
+        params = np.concatenate([params, fresh])
+        sigmas = np.concatenate([sigmas, fresh_sigmas])
+        unary = setting.unary(params, sigmas)
         timings['propose'] += time.perf_counter() - start
 
-        current = energy(Problem(unary, edges, weights, costs), labels)
+        current = energy(setting.problem(unary), labels)
         for _ in range(config.max_iterations):
             iterations += 1
             start = time.perf_counter()
-            labels = sweep(Problem(unary, edges, weights, costs), labels)
+            labels = sweep(setting.problem(unary), labels)
             timings['expand'] += time.perf_counter() - start
             start = time.perf_counter()
-            _refit(model, data, labels, params, unary, config)
+            _refit(setting, labels, params, sigmas, unary)
             timings['refit'] += time.perf_counter() - start
-            new = energy(Problem(unary, edges, weights, costs), labels)
+            new = energy(setting.problem(unary), labels)
             history.append(new)
             if not new < current - 1e-9:
                 break
             current = new
         # Only the models in use survive into the next round (and into the result).
-        labels, params = _compress(labels, params)
+        labels, kept = _compress(labels)
+        params, sigmas = params[kept], sigmas[kept]
 
-    final = energy_of(labels, params, model, data, edges, weights, config)
+    final = energy(setting.problem(setting.unary(params, sigmas)), labels)
     out = np.where(labels == OUTLIER, -1, labels - 1)
-    return PearlResult(out, params, final, tuple(history), iterations, timings)
+    return PearlResult(out, params, sigmas, final, tuple(history), iterations, timings,
+                       setting.scale)
 
 
-def energy_of(labels, params, model, data, edges, weights, config) -> float:
-    """The energy of a compressed labelling (outlier = 0, model k = k + 1)."""
+def _setting(tracks: np.ndarray, config: PearlConfig, rng: np.random.Generator) -> _Setting:
+    model = get_model(config.model)
+    data = model.data(tracks)  # validates tracks
     n = data.shape[0]
-    unary = np.vstack([np.full((1, n), (config.outlier_threshold / config.noise) ** 2),
-                       data_costs(model.residuals(data, params), config)])
-    costs = np.full(unary.shape[0], config.label_cost)
-    costs[OUTLIER] = 0.0
-    return energy(Problem(unary, edges, weights, costs), labels)
+    if n < model.min_samples + 1:
+        raise InputError(f'tracks must hold at least {model.min_samples + 1} points for '
+                         f'model {config.model!r}, got {n}')
+    anchor = np.asarray(tracks, dtype=np.float64)[-1]
+    edges = delaunay_edges(anchor)
+    neighbours = nearest_neighbours(anchor, _NEIGHBOURS)
+    scale = config.noise or max(local_scale(model, data, neighbours, rng), config.min_noise)
+    dof = model.residual_dof(data)
+    floor = _FLOOR * scale
+    # A point is an outlier when its residual to a model at the fresh noise level exceeds
+    # outlier_threshold of those levels.
+    outlier_cost = float(data_costs(np.array([[config.outlier_threshold * scale]]),
+                                    np.array([scale]), dof, floor)[0, 0])
+    return _Setting(
+        model=model, data=data, edges=edges,
+        weights=np.full(edges.shape[0], config.smoothness),
+        neighbours=neighbours, scale=scale, floor=floor, dof=dof,
+        outlier_cost=outlier_cost, label_cost=config.label_cost)
+
+
+def _propose(setting: _Setting, labels: np.ndarray, params: np.ndarray, config: PearlConfig,
+             rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """Fresh hypotheses: a batch of minimal samples, plus, once models exist, samples drawn inside
+    each segment and the refit of every pair of segments merged (so that a motion split between
+    two labels has a single label that can take both halves)."""
+    model, data = setting.model, setting.data
+    m = model.min_samples
+    samples = [mixed_samples(data.shape[0], setting.neighbours, config.num_proposals, m,
+                             config.local_sampling, rng)]
+    segments = [np.flatnonzero(labels == k) for k in range(1, params.shape[0] + 1)]
+    for members in segments:
+        samples.append(uniform_samples(members, _SEGMENT_SAMPLES, m, rng))
+    fresh, ok = model.fit_minimal(data, np.concatenate(samples))
+    merged, merged_sigmas = [], []
+    for i in range(len(segments)):
+        for j in range(i + 1, len(segments)):
+            both = np.concatenate([segments[i], segments[j]])
+            new = model.refit(data, both, params[i])
+            if new is None:
+                continue
+            residuals = model.residuals(data, new[None])[0, both]
+            sigma = noise_level(residuals, setting.dof, setting.floor, model.min_samples)
+            if sigma is not None:
+                merged.append(new)
+                merged_sigmas.append(sigma)
+    # A fresh hypothesis does not know its noise level yet: it is offered at several, and
+    # re-estimation tightens the one that is taken.
+    fresh = fresh[ok]
+    levels = setting.scale * np.asarray(_PROPOSAL_LEVELS)
+    params = np.concatenate([np.repeat(fresh, levels.size, axis=0),
+                             np.asarray(merged).reshape((-1,) + fresh.shape[1:])])
+    sigmas = np.concatenate([np.tile(levels, fresh.shape[0]), merged_sigmas])
+    return params, sigmas
 
 
 def _param_shape(model: MotionModel, data: np.ndarray) -> tuple[int, ...]:
@@ -178,12 +279,14 @@ def _param_shape(model: MotionModel, data: np.ndarray) -> tuple[int, ...]:
     return model.fit_minimal(data, sample)[0].shape[1:]
 
 
-def _refit(model: MotionModel, data: np.ndarray, labels: np.ndarray, params: np.ndarray,
-           unary: np.ndarray, config: PearlConfig) -> None:
-    """Re-estimate every model in use from its points; keep a refit only if it lowers their cost.
+def _refit(setting: _Setting, labels: np.ndarray, params: np.ndarray, sigmas: np.ndarray,
+           unary: np.ndarray) -> None:
+    """Re-estimate every model in use, and its noise level, from its points; keep a refit only
+    if it lowers their cost.
 
-    ``params`` and ``unary`` are updated in place, so the energy never goes up.
+    ``params``, ``sigmas`` and ``unary`` are updated in place, so the energy never goes up.
     """
+    model, data = setting.model, setting.data
     for label in np.unique(labels):
         if label == OUTLIER:
             continue
@@ -191,17 +294,23 @@ def _refit(model: MotionModel, data: np.ndarray, labels: np.ndarray, params: np.
         new = model.refit(data, members, params[label - 1])
         if new is None:
             continue
-        row = data_costs(model.residuals(data, new[None])[0], config)
+        residuals = model.residuals(data, new[None])
+        sigma = noise_level(residuals[0, members], setting.dof, setting.floor, model.min_samples)
+        if sigma is None:
+            continue
+        row = data_costs(residuals, np.array([sigma]), setting.dof, setting.floor)[0]
         if row[members].sum() < unary[label, members].sum():
             params[label - 1] = new
+            sigmas[label - 1] = sigma
             unary[label] = row
 
 
-def _compress(labels: np.ndarray, params: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Keep the models in use, renumbered by decreasing support; outliers stay 0."""
+def _compress(labels: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Renumber the models in use by decreasing support (outliers stay 0); also returns the
+    indices of the kept models among the old ones."""
     used = np.unique(labels[labels != OUTLIER])
-    support = np.array([np.count_nonzero(labels == u) for u in used])
+    support = np.array([np.count_nonzero(labels == u) for u in used], dtype=np.int64)
     used = used[np.argsort(-support, kind='stable')]
-    mapping = np.zeros(params.shape[0] + 1, dtype=np.int64)
+    mapping = np.zeros(int(labels.max()) + 1, dtype=np.int64)
     mapping[used] = np.arange(1, used.size + 1)
-    return mapping[labels], params[used - 1]
+    return mapping[labels], used - 1

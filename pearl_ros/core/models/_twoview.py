@@ -263,6 +263,10 @@ class TwoViewModel:
         samples = check_samples(samples, data.shape[0], self.min_samples)
         return self._linear(data[samples], minimal=True)
 
+    def residual_dof(self, data: np.ndarray) -> float:
+        """1: the Sampson distance is a first-order distance to a codimension-1 variety."""
+        return 1.0
+
     def residuals(self, data: np.ndarray, params: np.ndarray) -> np.ndarray:
         """Sampson distances ``(K, N)`` float64 in pixels, finite (at most FAR).
 

@@ -70,6 +70,12 @@ class AffineSubspace:
             return None
         return np.concatenate([mean[:, None], vt[: self.dim].T], axis=1)
 
+    def residual_dof(self, data: np.ndarray) -> float:
+        """(2F - 3) / F: the residual lives in the 2F - 3 directions normal to the subspace and
+        r^2 is its squared length divided by F."""
+        dims = data.shape[1]
+        return (dims - self.dim) / (dims / 2)
+
     def residuals(self, data: np.ndarray, params: np.ndarray) -> np.ndarray:
         params = np.asarray(params)
         if params.ndim == 2:

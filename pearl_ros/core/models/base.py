@@ -52,3 +52,10 @@ class MotionModel(Protocol):
     def residuals(self, data: np.ndarray, params: np.ndarray) -> np.ndarray:
         """Distances ``(K, N)`` in pixels of every point to each of ``params`` ``(K, ...)``."""
         ...
+
+    def residual_dof(self, data: np.ndarray) -> float:
+        """E[r^2] / sigma^2 for an inlier under isotropic pixel noise sigma per coordinate.
+
+        It turns residuals into a likelihood with an unknown noise level per model.
+        """
+        ...

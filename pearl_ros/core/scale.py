@@ -1,0 +1,56 @@
+"""Automatic noise scale: how far points stray from models fitted to their image neighbours.
+
+Points of one rigid body cluster in the image, so a model fitted by least squares to a point's
+image neighbourhood mostly describes one motion, and its residuals measure the tracking noise at
+the sequence's own level. The median over many neighbourhoods is robust to the few that straddle
+two motions. It needs no segmentation and no per-sequence parameter.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from pearl_ros.core.models.base import MotionModel
+
+
+def local_scale(
+    model: MotionModel,
+    data: np.ndarray,
+    neighbours: np.ndarray,
+    rng: np.random.Generator,
+    num_seeds: int = 60,
+) -> float:
+    """Median noise level (pixels) of models refitted to image neighbourhoods.
+
+    Parameters
+    ----------
+    model : MotionModel
+    data : (N, D) model data rows
+    neighbours : (N, k) int, image neighbours of every point (k > min_samples)
+    rng : numpy Generator
+    num_seeds : int, neighbourhoods examined
+
+    Returns
+    -------
+    float, pixels; 0.0 when no neighbourhood could be fitted.
+    """
+    n, k = neighbours.shape
+    m = model.min_samples
+    if k + 1 <= m:
+        return 0.0
+    dof = model.residual_dof(data)
+    seeds = rng.choice(n, size=min(num_seeds, n), replace=False)
+    levels = []
+    start_samples = np.concatenate([seeds[:, None], neighbours[seeds, : m - 1]], axis=1)
+    starts, ok = model.fit_minimal(data, start_samples)
+    for seed, start, good in zip(seeds, starts, ok):
+        if not good:
+            continue
+        hood = np.concatenate([[seed], neighbours[seed]])
+        params = model.refit(data, hood, start)
+        if params is None:
+            continue
+        residuals = model.residuals(data, params[None])[0, hood]
+        # n - p as in an unbiased variance: the fit absorbs about m points' worth of residual.
+        levels.append(np.sqrt(np.sum(np.square(residuals)) / (dof * (hood.size - m))))
+    return float(np.median(levels)) if levels else 0.0

@@ -1,0 +1,69 @@
+"""Every alpha-expansion move is the optimal move: checked against brute force."""
+
+from __future__ import annotations
+
+import itertools
+
+import numpy as np
+import pytest
+
+from pearl_ros.core.energy import Problem, energy
+from pearl_ros.core.expansion import expansion_move
+
+
+def random_problem(rng: np.random.Generator, n: int, num_labels: int) -> Problem:
+    pairs = np.array([(i, j) for i in range(n) for j in range(i + 1, n)])
+    keep = rng.random(len(pairs)) < 0.5
+    edges = pairs[keep].reshape(-1, 2)
+    # Some labels free, some expensive: label costs must decide some moves.
+    costs = rng.uniform(0, 15, num_labels) * (rng.random(num_labels) < 0.8)
+    return Problem(rng.uniform(0, 10, (num_labels, n)), edges,
+                   rng.uniform(0, 5, len(edges)), costs)
+
+
+def best_move_energy(problem: Problem, labels: np.ndarray, alpha: int) -> float:
+    n = labels.size
+    return min(energy(problem, np.where(np.array(switch, dtype=bool), alpha, labels))
+               for switch in itertools.product([False, True], repeat=n))
+
+
+@pytest.mark.parametrize('seed', range(20))
+def test_expansion_move_is_optimal_against_brute_force(seed):
+    rng = np.random.default_rng(seed)
+    for _ in range(10):
+        n = int(rng.integers(2, 9))
+        problem = random_problem(rng, n, int(rng.integers(2, 6)))
+        labels = rng.integers(0, problem.unary.shape[0], n)
+        alpha = int(rng.integers(0, problem.unary.shape[0]))
+        moved = expansion_move(problem, labels, alpha)
+        assert set(np.flatnonzero(moved != labels)) <= set(np.flatnonzero(moved == alpha))
+        assert energy(problem, moved) == pytest.approx(best_move_energy(problem, labels, alpha),
+                                                       abs=1e-9)
+
+
+def test_expansion_to_an_unused_label_pays_its_label_cost():
+    # Two points both cheaper under label 1 by 3 each; label 1 costs 10 to open: no move.
+    unary = np.array([[5.0, 5.0], [2.0, 2.0]])
+    problem = Problem(unary, np.empty((0, 2), dtype=np.int64), np.empty(0), np.array([0.0, 10.0]))
+    labels = np.zeros(2, dtype=np.int64)
+    assert np.array_equal(expansion_move(problem, labels, 1), labels)
+    # Cheaper to open than the gain of 6: both switch.
+    cheap = Problem(unary, problem.edges, problem.weights, np.array([0.0, 5.0]))
+    assert np.array_equal(expansion_move(cheap, labels, 1), [1, 1])
+
+
+def test_expansion_removes_a_label_whose_cost_outweighs_its_data_gain():
+    # Point 1 is slightly better under label 2, but label 2 costs 4: expanding label 1 takes it.
+    unary = np.array([[9.0, 9.0], [1.0, 2.0], [9.0, 1.0]])
+    problem = Problem(unary, np.empty((0, 2), dtype=np.int64), np.empty(0),
+                      np.array([0.0, 4.0, 4.0]))
+    moved = expansion_move(problem, np.array([1, 2]), 1)
+    assert np.array_equal(moved, [1, 1])
+
+
+def test_smoothness_pulls_a_lone_point_to_its_neighbours_label():
+    unary = np.array([[0.0, 0.0, 1.0], [1.0, 1.0, 0.0]])
+    edges = np.array([[0, 2], [1, 2]])
+    problem = Problem(unary, edges, np.array([2.0, 2.0]), np.zeros(2))
+    moved = expansion_move(problem, np.array([1, 1, 1]), 0)
+    assert np.array_equal(moved, [0, 0, 0])

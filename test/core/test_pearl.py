@@ -1,0 +1,82 @@
+"""PEaRL on scenes with known motions: accuracy, monotone energy, label-cost flips, input checks."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from pearl_ros.core.config import PearlConfig
+from pearl_ros.core.errors import InputError
+from pearl_ros.core.metrics import misclassification
+from pearl_ros.core.pearl import fit
+
+
+@pytest.mark.parametrize('sizes', [(120, 80), (100, 70, 60)])
+def test_fit_finds_the_number_of_motions_and_segments_them(affine_scene, sizes):
+    tracks, truth = affine_scene(sizes=sizes, noise=0.5, seed=len(sizes))
+    result = fit(tracks, rng=0)
+    assert result.num_models == len(sizes)
+    assert misclassification(result.labels, truth) < 0.02
+
+
+def test_energy_never_increases_across_iterations(affine_scene):
+    tracks, _ = affine_scene(sizes=(100, 70, 60), noise=1.0, seed=11)
+    result = fit(tracks, rng=1)
+    history = np.array(result.energy_history)
+    assert history.size >= 2
+    assert np.all(np.diff(history) <= 1e-6)
+    assert result.energy == pytest.approx(history[-1])
+
+
+def test_a_higher_label_cost_leaves_fewer_models(affine_scene):
+    tracks, _ = affine_scene(sizes=(100, 70, 60), noise=0.5, seed=4)
+    cheap = fit(tracks, PearlConfig(label_cost=100.0), rng=0)
+    dear = fit(tracks, PearlConfig(label_cost=1e6), rng=0)
+    assert cheap.num_models == 3
+    assert dear.num_models < cheap.num_models
+
+
+def test_fit_is_deterministic_for_a_seed(affine_scene):
+    tracks, _ = affine_scene(sizes=(80, 60), noise=1.0, seed=2)
+    first, again = fit(tracks, rng=7), fit(tracks, rng=7)
+    assert np.array_equal(first.labels, again.labels)
+    assert first.energy == again.energy
+
+
+def test_gross_outliers_get_the_outlier_label(affine_scene):
+    tracks, truth = affine_scene(sizes=(120, 90), noise=0.5, seed=8)
+    rng = np.random.default_rng(0)
+    bad = rng.choice(tracks.shape[1], 8, replace=False)
+    tracks[:, bad] += rng.uniform(-80, 80, (tracks.shape[0], bad.size, 2))
+    result = fit(tracks, rng=0)
+    assert np.mean(result.labels[bad] == -1) >= 0.75
+    good = np.setdiff1d(np.arange(truth.size), bad)
+    assert misclassification(result.labels[good], truth[good]) < 0.02
+
+
+@pytest.mark.parametrize('model', ['fundamental', 'homography'])
+def test_two_view_models_run_through_the_same_optimiser(affine_scene, model):
+    tracks, truth = affine_scene(sizes=(120, 90), noise=0.3, seed=6)
+    result = fit(tracks[[0, -1]], PearlConfig(model=model), rng=0)
+    assert result.num_models >= 1
+    assert result.labels.shape == truth.shape
+
+
+def test_too_few_points_raise_a_clear_error():
+    with pytest.raises(InputError, match='at least'):
+        fit(np.zeros((5, 3, 2)))
+
+
+def test_non_finite_tracks_raise_input_error(affine_scene):
+    tracks, _ = affine_scene(sizes=(30,))
+    tracks[2, 4, 0] = np.inf
+    with pytest.raises(InputError, match='finite'):
+        fit(tracks)
+
+
+@pytest.mark.parametrize('field,value', [('noise', -1.0), ('label_cost', -2.0),
+                                         ('model', 'sphere'), ('local_sampling', 1.5),
+                                         ('rounds', 0)])
+def test_config_rejects_out_of_range_values_naming_the_field(field, value):
+    with pytest.raises(InputError, match=field):
+        PearlConfig(**{field: value})
