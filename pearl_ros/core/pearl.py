@@ -135,15 +135,12 @@ class _Setting:
     outlier_cost: float
     label_cost: float
 
-    def costs(self, params: np.ndarray, sigmas: np.ndarray) -> np.ndarray:
-        """Data cost rows ``(K, N)`` of models ``params`` with noise levels ``sigmas`` (K,)."""
-        residuals = self.model.residuals(self.data, params)
-        return data_costs(residuals, sigmas, self.dof, self.floor)
-
-    def unary(self, params: np.ndarray, sigmas: np.ndarray) -> np.ndarray:
-        """Data costs ``(1 + K, N)``: the outlier row, then one row per model."""
+    def unary(self, residuals: np.ndarray, sigmas: np.ndarray) -> np.ndarray:
+        """Data costs ``(1 + K, N)`` from model residuals ``(K, N)`` and noise levels ``(K,)``:
+        the outlier row, then one row per model."""
         n = self.data.shape[0]
-        return np.vstack([np.full((1, n), self.outlier_cost), self.costs(params, sigmas)])
+        rows = data_costs(residuals, sigmas, self.dof, self.floor)
+        return np.vstack([np.full((1, n), self.outlier_cost), rows])
 
     def problem(self, unary: np.ndarray) -> Problem:
         costs = np.full(unary.shape[0], self.label_cost)
@@ -180,15 +177,17 @@ def fit(
 
     params = np.empty((0,) + _param_shape(model, data))
     sigmas = np.empty(0)
+    residuals = np.empty((0, n))
     labels = np.full(n, OUTLIER, dtype=np.int64)
     history: list[float] = []
     iterations = 0
     for _ in range(config.rounds):
         start = time.perf_counter()
-        fresh, fresh_sigmas = _propose(setting, labels, params, config, rng)
+        fresh, fresh_sigmas, fresh_residuals = _propose(setting, labels, params, config, rng)
         params = np.concatenate([params, fresh])
         sigmas = np.concatenate([sigmas, fresh_sigmas])
-        unary = setting.unary(params, sigmas)
+        residuals = np.concatenate([residuals, fresh_residuals])
+        unary = setting.unary(residuals, sigmas)
         timings['propose'] += time.perf_counter() - start
 
         current = energy(setting.problem(unary), labels)
@@ -198,7 +197,7 @@ def fit(
             labels = sweep(setting.problem(unary), labels)
             timings['expand'] += time.perf_counter() - start
             start = time.perf_counter()
-            _refit(setting, labels, params, sigmas, unary)
+            _refit(setting, labels, params, sigmas, residuals, unary)
             timings['refit'] += time.perf_counter() - start
             new = energy(setting.problem(unary), labels)
             history.append(new)
@@ -207,9 +206,9 @@ def fit(
             current = new
         # Only the models in use survive into the next round (and into the result).
         labels, kept = _compress(labels)
-        params, sigmas = params[kept], sigmas[kept]
+        params, sigmas, residuals = params[kept], sigmas[kept], residuals[kept]
 
-    final = energy(setting.problem(setting.unary(params, sigmas)), labels)
+    final = energy(setting.problem(setting.unary(residuals, sigmas)), labels)
     out = np.where(labels == OUTLIER, -1, labels - 1)
     return PearlResult(out, params, sigmas, final, tuple(history), iterations, timings,
                        setting.scale)
@@ -240,7 +239,7 @@ def _setting(tracks: np.ndarray, config: PearlConfig, rng: np.random.Generator) 
 
 
 def _propose(setting: _Setting, labels: np.ndarray, params: np.ndarray, config: PearlConfig,
-             rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+             rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Fresh hypotheses: a batch of minimal samples, plus, once models exist, samples drawn inside
     each segment and the refit of every pair of segments merged (so that a motion split between
     two labels has a single label that can take both halves)."""
@@ -252,26 +251,30 @@ def _propose(setting: _Setting, labels: np.ndarray, params: np.ndarray, config: 
     for members in segments:
         samples.append(uniform_samples(members, _SEGMENT_SAMPLES, m, rng))
     fresh, ok = model.fit_minimal(data, np.concatenate(samples))
-    merged, merged_sigmas = [], []
+    merged, merged_sigmas, merged_residuals = [], [], []
     for i in range(len(segments)):
         for j in range(i + 1, len(segments)):
             both = np.concatenate([segments[i], segments[j]])
             new = model.refit(data, both, params[i])
             if new is None:
                 continue
-            residuals = model.residuals(data, new[None])[0, both]
-            sigma = noise_level(residuals, setting.dof, setting.floor, model.min_samples)
+            residuals = model.residuals(data, new[None])[0]
+            sigma = noise_level(residuals[both], setting.dof, setting.floor, model.min_samples)
             if sigma is not None:
                 merged.append(new)
                 merged_sigmas.append(sigma)
+                merged_residuals.append(residuals)
     # A fresh hypothesis does not know its noise level yet: it is offered at several, and
     # re-estimation tightens the one that is taken.
     fresh = fresh[ok]
+    fresh_residuals = model.residuals(data, fresh)
     levels = setting.scale * np.asarray(_PROPOSAL_LEVELS)
     params = np.concatenate([np.repeat(fresh, levels.size, axis=0),
                              np.asarray(merged).reshape((-1,) + fresh.shape[1:])])
     sigmas = np.concatenate([np.tile(levels, fresh.shape[0]), merged_sigmas])
-    return params, sigmas
+    residuals = np.concatenate([np.repeat(fresh_residuals, levels.size, axis=0),
+                                np.asarray(merged_residuals).reshape(-1, data.shape[0])])
+    return params, sigmas, residuals
 
 
 def _param_shape(model: MotionModel, data: np.ndarray) -> tuple[int, ...]:
@@ -280,11 +283,11 @@ def _param_shape(model: MotionModel, data: np.ndarray) -> tuple[int, ...]:
 
 
 def _refit(setting: _Setting, labels: np.ndarray, params: np.ndarray, sigmas: np.ndarray,
-           unary: np.ndarray) -> None:
+           residuals: np.ndarray, unary: np.ndarray) -> None:
     """Re-estimate every model in use, and its noise level, from its points; keep a refit only
     if it lowers their cost.
 
-    ``params``, ``sigmas`` and ``unary`` are updated in place, so the energy never goes up.
+    ``params``, ``sigmas``, ``residuals`` and ``unary`` are updated in place, so the energy never goes up.
     """
     model, data = setting.model, setting.data
     for label in np.unique(labels):
@@ -294,14 +297,16 @@ def _refit(setting: _Setting, labels: np.ndarray, params: np.ndarray, sigmas: np
         new = model.refit(data, members, params[label - 1])
         if new is None:
             continue
-        residuals = model.residuals(data, new[None])
-        sigma = noise_level(residuals[0, members], setting.dof, setting.floor, model.min_samples)
+        new_residuals = model.residuals(data, new[None])
+        sigma = noise_level(new_residuals[0, members], setting.dof, setting.floor,
+                            model.min_samples)
         if sigma is None:
             continue
-        row = data_costs(residuals, np.array([sigma]), setting.dof, setting.floor)[0]
+        row = data_costs(new_residuals, np.array([sigma]), setting.dof, setting.floor)[0]
         if row[members].sum() < unary[label, members].sum():
             params[label - 1] = new
             sigmas[label - 1] = sigma
+            residuals[label - 1] = new_residuals[0]
             unary[label] = row
 
 

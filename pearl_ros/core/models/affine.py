@@ -81,9 +81,13 @@ class AffineSubspace:
         if params.ndim == 2:
             params = params[None]
         mean, basis = params[:, :, 0], params[:, :, 1:]
-        # ||x - m||^2 - ||B^T (x - m)||^2, expanded so that no (K, N, D) array is formed.
+        num, dims = mean.shape
+        # ||x - m||^2 - ||B^T (x - m)||^2, expanded so that no (K, N, D) array is formed and the
+        # heavy products are matrix products (BLAS).
         x_sq = np.einsum('nd,nd->n', data, data)
-        dist_sq = x_sq[None, :] - 2.0 * mean @ data.T + np.einsum('kd,kd->k', mean, mean)[:, None]
-        proj = np.einsum('kdj,nd->kjn', basis, data) - np.einsum('kdj,kd->kj', basis, mean)[:, :, None]
-        dist_sq -= np.einsum('kjn,kjn->kn', proj, proj)
+        dist_sq = x_sq[None, :] - 2.0 * (mean @ data.T) + np.einsum('kd,kd->k', mean, mean)[:, None]
+        flat = np.transpose(basis, (1, 0, 2)).reshape(dims, num * self.dim)  # (D, K*3)
+        proj = (data @ flat).reshape(-1, num, self.dim)  # (N, K, 3)
+        proj -= np.einsum('kdj,kd->kj', basis, mean)[None, :, :]
+        dist_sq -= np.einsum('nkj,nkj->kn', proj, proj)
         return np.sqrt(np.maximum(dist_sq, 0.0))
