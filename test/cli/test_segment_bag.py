@@ -71,10 +71,8 @@ def test_no_bag_given_is_a_usage_error(capsys):
     assert_one_line_error(capsys, 'BAG')
 
 
-needs_bag = pytest.mark.skipif(not SMALL_BAG.is_dir(), reason='bundled bag not generated yet')
 
 
-@needs_bag
 def test_segment_bag_reports_the_segmentation_of_a_bundled_bag(capsys):
     from pearl_ros.bagio.reader import read_feature_frames, read_ground_truth
     from pearl_ros.core.config import PearlConfig
@@ -126,14 +124,12 @@ def _matchings(pred: np.ndarray, truth: np.ndarray):
             yield dict(zip(chosen, true_groups))
 
 
-@pytest.mark.skipif(not (BAGS / 'cars2').is_dir() or not SMALL_BAG.is_dir(), reason='no bags')
 def test_segment_bag_reports_every_bag_given(capsys):
     assert main([str(SMALL_BAG), str(BAGS / 'cars2')]) == 0
     out = capsys.readouterr().out
     assert re.search(r'^1R2RCR_g12: ', out, re.M) and re.search(r'^cars2: ', out, re.M)
 
 
-@needs_bag
 def test_segment_bag_without_ground_truth_reports_labels_only(tmp_path, capsys):
     from pearl_ros.bagio.reader import FeatureFrame, read_feature_frames
     from pearl_ros.bagio.writer import write_feature_bag
