@@ -24,7 +24,7 @@ class PearlConfig:
     min_noise: float = 0.05  # px, floor of the estimated scale
     outlier_threshold: float = 10.0  # noise levels; a larger residual makes a point an outlier
     smoothness: float = 4.0  # lambda, cost units per cut neighbour edge of unit weight
-    label_cost: float = 600.0  # beta, cost units per model in use
+    label_cost: float = 1000.0  # beta, cost units per model in use
     num_proposals: int = 200  # fresh minimal samples per proposal round
     local_sampling: float = 0.8  # share of samples drawn from a point's neighbourhood (NAPSAC)
     max_iterations: int = 10  # expand / re-estimate iterations per proposal round
