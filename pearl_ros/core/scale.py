@@ -50,7 +50,7 @@ def local_scale(
         params = model.refit(data, hood, start)
         if params is None:
             continue
-        residuals = model.residuals(data, params[None])[0, hood]
+        residuals = model.residuals(data[hood], params[None])[0]
         # n - p as in an unbiased variance: the fit absorbs about m points' worth of residual.
         levels.append(np.sqrt(np.sum(np.square(residuals)) / (dof * (hood.size - m))))
     return float(np.median(levels)) if levels else 0.0

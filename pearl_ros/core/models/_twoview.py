@@ -22,6 +22,7 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from pearl_ros.core.errors import InputError
+from pearl_ros.core.models.base import check_tracks
 
 # px; the residual reported where a model cannot measure a point (zero gradient of the
 # constraint, a point mapped to infinity). Large enough to lose to the outlier label, finite so
@@ -49,13 +50,7 @@ def two_view_data(tracks: np.ndarray) -> np.ndarray:
     -------
     (N, 4) float64, pixels
     """
-    tracks = np.asarray(tracks, dtype=np.float64)
-    if tracks.ndim != 3 or tracks.shape[2] != 2:
-        raise InputError(f'tracks must have shape (F, N, 2), got {tracks.shape}')
-    if tracks.shape[0] < 2:
-        raise InputError(f'tracks must have at least 2 frames, got {tracks.shape[0]}')
-    if not np.all(np.isfinite(tracks)):
-        raise InputError('tracks must be finite (no NaN or inf coordinates)')
+    tracks = check_tracks(tracks, min_frames=2)
     return np.concatenate([tracks[0], tracks[-1]], axis=1)
 
 
@@ -74,12 +69,7 @@ def check_samples(samples: np.ndarray, num_points: int, min_samples: int) -> np.
     samples = np.asarray(samples)
     if samples.ndim != 2 or samples.shape[1] != min_samples:
         raise InputError(f'samples must have shape (K, {min_samples}), got {samples.shape}')
-    if samples.size and not np.issubdtype(samples.dtype, np.integer):
-        raise InputError(f'samples must be integer indices, got dtype {samples.dtype}')
-    if samples.size and (samples.min() < 0 or samples.max() >= num_points):
-        raise InputError(f'samples must index rows in [0, {num_points}), got values in '
-                         f'[{samples.min()}, {samples.max()}]')
-    return samples.astype(np.intp, copy=False)
+    return _check_index_values('samples', samples, num_points)
 
 
 def check_inliers(inliers: np.ndarray, num_points: int) -> np.ndarray:
@@ -87,12 +77,17 @@ def check_inliers(inliers: np.ndarray, num_points: int) -> np.ndarray:
     inliers = np.asarray(inliers)
     if inliers.ndim != 1:
         raise InputError(f'inliers must be a 1-D array of indices, got shape {inliers.shape}')
-    if inliers.size and not np.issubdtype(inliers.dtype, np.integer):
-        raise InputError(f'inliers must be integer indices, got dtype {inliers.dtype}')
-    if inliers.size and (inliers.min() < 0 or inliers.max() >= num_points):
-        raise InputError(f'inliers must index rows in [0, {num_points}), got values in '
-                         f'[{inliers.min()}, {inliers.max()}]')
-    return inliers.astype(np.intp, copy=False)
+    return _check_index_values('inliers', inliers, num_points)
+
+
+def _check_index_values(name: str, indices: np.ndarray, num_points: int) -> np.ndarray:
+    """Integer dtype and values in [0, num_points) for the index array called ``name``."""
+    if indices.size and not np.issubdtype(indices.dtype, np.integer):
+        raise InputError(f'{name} must be integer indices, got dtype {indices.dtype}')
+    if indices.size and (indices.min() < 0 or indices.max() >= num_points):
+        raise InputError(f'{name} must index rows in [0, {num_points}), got values in '
+                         f'[{indices.min()}, {indices.max()}]')
+    return indices.astype(np.intp, copy=False)
 
 
 def check_matrices(params: np.ndarray, *, batched: bool) -> np.ndarray:

@@ -16,23 +16,11 @@ from typing import ClassVar
 
 import numpy as np
 
-from pearl_ros.core.errors import InputError
+from pearl_ros.core.models.base import check_tracks
 
 # A sample whose 3 difference vectors have a singular value below this share of the largest
 # spans less than 3 dimensions: its subspace is not determined.
 _RANK_TOL = 1e-6
-
-
-def check_tracks(tracks: np.ndarray, min_frames: int = 1) -> np.ndarray:
-    """Validate ``tracks`` (F, N, 2) pixels; returns it as float64."""
-    tracks = np.asarray(tracks, dtype=np.float64)
-    if tracks.ndim != 3 or tracks.shape[2] != 2:
-        raise InputError(f'tracks must have shape (F, N, 2), got {tracks.shape}')
-    if tracks.shape[0] < min_frames:
-        raise InputError(f'tracks must have at least {min_frames} frames, got {tracks.shape[0]}')
-    if not np.all(np.isfinite(tracks)):
-        raise InputError('tracks must be finite (no NaN or inf coordinates)')
-    return tracks
 
 
 class AffineSubspace:

@@ -13,6 +13,8 @@ from typing import ClassVar, Protocol
 
 import numpy as np
 
+from pearl_ros.core.errors import InputError
+
 
 class MotionModel(Protocol):
     """A family of rigid-motion models fitted to point data.
@@ -59,3 +61,15 @@ class MotionModel(Protocol):
         It turns residuals into a likelihood with an unknown noise level per model.
         """
         ...
+
+
+def check_tracks(tracks: np.ndarray, min_frames: int = 1) -> np.ndarray:
+    """Validate ``tracks`` (F, N, 2) pixels; returns it as float64."""
+    tracks = np.asarray(tracks, dtype=np.float64)
+    if tracks.ndim != 3 or tracks.shape[2] != 2:
+        raise InputError(f'tracks must have shape (F, N, 2), got {tracks.shape}')
+    if tracks.shape[0] < min_frames:
+        raise InputError(f'tracks must have at least {min_frames} frames, got {tracks.shape[0]}')
+    if not np.all(np.isfinite(tracks)):
+        raise InputError('tracks must be finite (no NaN or inf coordinates)')
+    return tracks

@@ -11,6 +11,7 @@ from pearl_ros.core.errors import InputError
 from pearl_ros.core.models import get_model
 from pearl_ros.core.models._twoview import FAR
 from pearl_ros.core.models.fundamental import Fundamental, _rotations
+from twoview_oracles import normalised_pairs, similarity
 
 
 @pytest.fixture
@@ -53,18 +54,9 @@ def reprojection_distance(P1: np.ndarray, P2: np.ndarray, row: np.ndarray,
     return float(np.linalg.norm(fit.fun))
 
 
-def similarity(points: np.ndarray) -> np.ndarray:
-    """Hartley's normalising similarity (3, 3) of ``points`` (N, 2)."""
-    c = points.mean(axis=0)
-    s = np.sqrt(2) / np.mean(np.linalg.norm(points - c, axis=1))
-    return np.array([[s, 0, -s * c[0]], [0, s, -s * c[1]], [0, 0, 1]])
-
-
 def eight_point(rows: np.ndarray) -> np.ndarray:
     """A plain normalised 8-point fit (Hartley 1997), written here as the baseline for refit."""
-    T1, T2 = similarity(rows[:, :2]), similarity(rows[:, 2:])
-    x1 = np.column_stack([rows[:, :2], np.ones(len(rows))]) @ T1.T
-    x2 = np.column_stack([rows[:, 2:], np.ones(len(rows))]) @ T2.T
+    x1, x2, T1, T2 = normalised_pairs(rows)
     A = np.array([np.kron(b, a) for a, b in zip(x1, x2, strict=True)])
     Fn = np.linalg.svd(A)[2][-1].reshape(3, 3)
     u, s, vt = np.linalg.svd(Fn)
