@@ -6,12 +6,11 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from rosbags.highlevel import AnyReader
-from rosbags.typesys import Stores, get_typestore
 
 from pearl_ros.bagio import FeatureFrame, read_feature_frames, read_ground_truth, topics
 from pearl_ros.bagio.writer import write_feature_bag
 from pearl_ros.core.errors import InputError
+from bag_oracles import as_float32, raw_messages
 
 TOPIC = '/feature_tracker/feature'
 TRUTH = '/ground_truth/labels'
@@ -35,20 +34,6 @@ def random_frames(seed: int, num_frames: int = 6, max_id: int = 2**24) -> list[F
         frames.append(FeatureFrame(stamp, ids, uv))
         stamp += int(rng.integers(20_000_000, 50_000_000))  # 20-50 ms, uneven
     return frames
-
-
-def raw_messages(path: Path, topic: str) -> list[object]:
-    """Messages of ``topic`` decoded by rosbags alone (independent of pearl_ros.bagio.reader)."""
-    with AnyReader([path], default_typestore=get_typestore(Stores.ROS2_KILTED)) as reader:
-        connections = [c for c in reader.connections if c.topic == topic]
-        return [
-            reader.deserialize(raw, c.msgtype)
-            for c, _, raw in reader.messages(connections=connections)
-        ]
-
-
-def as_float32(values: np.ndarray) -> np.ndarray:
-    return np.asarray(values, dtype=np.float32).astype(np.float64)
 
 
 @pytest.mark.parametrize('storage', ['mcap', 'sqlite3'])

@@ -9,30 +9,16 @@ from pathlib import Path
 import numpy as np
 import pytest
 import scipy.io
-from rosbags.highlevel import AnyReader
-from rosbags.typesys import Stores, get_typestore
 
 from pearl_ros.bagio import read_feature_frames, read_ground_truth, topics
 from pearl_ros.cli.make_bag import EPOCH_NS, main
+from bag_oracles import as_float32, raw_messages
 
 HOPKINS = Path(__file__).resolve().parents[2].parent / 'shared' / 'data' / 'hopkins155'
 
 
 def truth_file(name: str) -> Path:
     return HOPKINS / name / f'{name}_truth.mat'
-
-
-def raw_messages(path: Path, topic: str) -> list[object]:
-    with AnyReader([path], default_typestore=get_typestore(Stores.ROS2_KILTED)) as reader:
-        connections = [c for c in reader.connections if c.topic == topic]
-        return [
-            reader.deserialize(raw, c.msgtype)
-            for c, _, raw in reader.messages(connections=connections)
-        ]
-
-
-def f32(values: np.ndarray) -> np.ndarray:
-    return np.asarray(values, dtype=np.float32).astype(np.float64)
 
 
 def test_pointcloud_bag_matches_the_mat_file(
@@ -54,7 +40,7 @@ def test_pointcloud_bag_matches_the_mat_file(
     for f, frame in enumerate(frames):
         assert frame.stamp_ns == EPOCH_NS + round(f * 1e9 / 30)
         np.testing.assert_array_equal(frame.ids, np.arange(num_points))
-        np.testing.assert_array_equal(frame.uv, f32((y[:2, :, f] / y[2, :, f]).T))
+        np.testing.assert_array_equal(frame.uv, as_float32((y[:2, :, f] / y[2, :, f]).T))
 
     # Normalised points come from the file's x field.
     for f, msg in enumerate(raw_messages(out, '/feature_tracker/feature')):
@@ -87,7 +73,7 @@ def test_pointcloud2_sqlite3_at_another_rate(tmp_path: Path) -> None:
     assert topics(out)['/feature_tracker/feature'] == 'sensor_msgs/msg/PointCloud2'
     frames = list(read_feature_frames(out))
     assert [f.stamp_ns - EPOCH_NS for f in frames] == [k * 100_000_000 for k in range(y.shape[2])]
-    np.testing.assert_array_equal(frames[-1].uv, f32((y[:2, :, -1] / y[2, :, -1]).T))
+    np.testing.assert_array_equal(frames[-1].uv, as_float32((y[:2, :, -1] / y[2, :, -1]).T))
     msg = raw_messages(out, '/feature_tracker/feature')[-1]
     points = np.frombuffer(msg.data.tobytes(), dtype='<u4,<f4,<f4,<f4,<f4')
     np.testing.assert_allclose(
