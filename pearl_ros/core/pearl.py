@@ -17,19 +17,19 @@ import numpy as np
 
 from pearl_ros.core.config import PearlConfig
 from pearl_ros.core.energy import Problem, energy
+from pearl_ros.core.errors import InputError
 from pearl_ros.core.expansion import expansion_move
 from pearl_ros.core.models import MotionModel, get_model
 from pearl_ros.core.neighbourhood import delaunay_edges, nearest_neighbours
 from pearl_ros.core.proposals import mixed_samples, uniform_samples
 from pearl_ros.core.scale import local_scale
-from pearl_ros.core.errors import InputError
 
 OUTLIER = 0
 _NEIGHBOURS = 10  # image neighbours a local sample is drawn from
 _MAX_PASSES = 5  # expansion passes over the labels within one sweep
 _FLOOR = 0.5  # least model noise level, in units of the fresh-proposal level
-_SEGMENT_SAMPLES = 20
-_PROPOSAL_LEVELS = (1.0, 2.0, 4.0)  # noise levels of a fresh hypothesis, in units of scale  # minimal samples drawn inside each current segment per round
+_SEGMENT_SAMPLES = 20  # minimal samples drawn inside each current segment per round
+_PROPOSAL_LEVELS = (1.0, 2.0, 4.0)  # noise levels of a fresh hypothesis, in units of scale
 
 
 @dataclass(frozen=True)
@@ -188,18 +188,19 @@ def fit(
         sigmas = np.concatenate([sigmas, fresh_sigmas])
         residuals = np.concatenate([residuals, fresh_residuals])
         unary = setting.unary(residuals, sigmas)
+        problem = setting.problem(unary)  # holds unary itself: _refit's updates show through
         timings['propose'] += time.perf_counter() - start
 
-        current = energy(setting.problem(unary), labels)
+        current = energy(problem, labels)
         for _ in range(config.max_iterations):
             iterations += 1
             start = time.perf_counter()
-            labels = sweep(setting.problem(unary), labels)
+            labels = sweep(problem, labels)
             timings['expand'] += time.perf_counter() - start
             start = time.perf_counter()
             _refit(setting, labels, params, sigmas, residuals, unary)
             timings['refit'] += time.perf_counter() - start
-            new = energy(setting.problem(unary), labels)
+            new = energy(problem, labels)
             history.append(new)
             if not new < current - 1e-9:
                 break
