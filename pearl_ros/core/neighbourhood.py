@@ -36,4 +36,8 @@ def nearest_neighbours(points: np.ndarray, k: int) -> np.ndarray:
     if k < 1:
         return np.empty((n, 0), dtype=np.int64)
     _, idx = cKDTree(points).query(points, k=k + 1)
-    return idx[:, 1:].astype(np.int64)
+    # Drop each point itself. It is usually first, but not when another point coincides with
+    # it; then the k+1 results hold it anywhere, or (among many coincident points) not at all.
+    not_self = idx != np.arange(n)[:, None]
+    keep = not_self & (np.cumsum(not_self, axis=1) <= k)
+    return idx[keep].reshape(n, k).astype(np.int64)
