@@ -51,6 +51,8 @@ CSV_COLUMNS = (
     'seconds',
     'iterations',
     'energy',
+    'truth_energy',
+    'crossover_pct',
 )
 # Thread pools of BLAS / OpenMP libraries read these once, when the library is loaded.
 THREAD_VARIABLES = (
@@ -81,6 +83,12 @@ class Row:
     iterations : int
     energy : float
         Final energy (NaN when ``fit`` reports no history).
+    truth_energy : float
+        With ``--oracle``: energy of the ground-truth segmentation, models refitted to it, in
+        the same setting; NaN otherwise.
+    crossover_pct : float
+        With ``--oracle``: percent of points closer to another true motion's model than to
+        their own; NaN otherwise.
     """
 
     name: str
@@ -93,6 +101,8 @@ class Row:
     seconds: float
     iterations: int
     energy: float
+    truth_energy: float = math.nan
+    crossover_pct: float = math.nan
 
     def csv_fields(self) -> list[str]:
         return [
@@ -106,6 +116,8 @@ class Row:
             f'{self.seconds:.4f}',
             str(self.iterations),
             f'{self.energy:.10g}',
+            f'{self.truth_energy:.10g}',
+            f'{self.crossover_pct:.4f}',
         ]
 
 
@@ -283,6 +295,7 @@ class _Task:
     seed: int
     frames: str
     config: PearlConfig
+    oracle: bool = False
 
 
 def _run_one(task: _Task) -> Row:
@@ -290,18 +303,25 @@ def _run_one(task: _Task) -> Row:
     import numpy as np
 
     from pearl_ros.core.metrics import misclassification
-    from pearl_ros.core.pearl import fit
+    from pearl_ros.core.pearl import evaluate_segmentation, fit
     from pearl_ros.datasets.hopkins import load_sequence
 
     try:
         seq = load_sequence(task.root, task.name)
         tracks = seq.tracks[[0, -1]] if task.frames == 'two' else seq.tracks
         # The seed of a sequence depends on --seed and its index only, never on the worker.
-        rng = np.random.default_rng(np.random.SeedSequence([task.seed, task.index]))
+        seed = np.random.SeedSequence([task.seed, task.index])
         start = time.perf_counter()
-        result = fit(tracks, config=task.config, rng=rng)
+        result = fit(tracks, config=task.config, rng=np.random.default_rng(seed))
         seconds = time.perf_counter() - start
         error = misclassification(result.labels, seq.labels)
+        truth_energy = crossover = math.nan
+        if task.oracle:
+            # The same seed gives the same setting (noise scale) as the fit above.
+            truth_energy, residuals = evaluate_segmentation(
+                tracks, seq.labels, task.config, np.random.default_rng(seed))
+            own = residuals[seq.labels, np.arange(seq.labels.size)]
+            crossover = 100.0 * float(np.mean(np.nanmin(residuals, axis=0) < own))
     except PearlError as err:
         raise type(err)(f'{task.name}: {err}') from err
     history = list(result.energy_history)
@@ -316,6 +336,8 @@ def _run_one(task: _Task) -> Row:
         seconds=seconds,
         iterations=int(result.iterations),
         energy=float(history[-1]) if history else math.nan,
+        truth_energy=float(truth_energy),
+        crossover_pct=crossover,
     )
 
 
@@ -404,6 +426,12 @@ def _build_parser() -> argparse.ArgumentParser:
     hop.add_argument('--jobs', type=int, default=1, metavar='N', help='worker processes')
     hop.add_argument('--csv', metavar='FILE', help='write one row per sequence to FILE')
     hop.add_argument('--seed', type=int, default=0, help='base random seed (default 0)')
+    hop.add_argument(
+        '--oracle',
+        action='store_true',
+        help='also measure the ground-truth segmentation in the same energy: counts search '
+        'failures (result energy above the truth\'s) and energy failures',
+    )
     hop.add_argument('--only', nargs='+', metavar='NAME', help='run these sequences only')
     hop.add_argument(
         '--set',
@@ -436,7 +464,10 @@ def _hopkins155(args: argparse.Namespace) -> int:
         names = sequence_names(root)
     if not names:
         raise InputError(f'no Hopkins155 sequences (*/*_truth.mat) in {root}')
-    tasks = [_Task(str(root), name, index[name], args.seed, args.frames, config) for name in names]
+    tasks = [
+        _Task(str(root), name, index[name], args.seed, args.frames, config, args.oracle)
+        for name in names
+    ]
 
     csv_file = None
     if args.csv:
@@ -469,7 +500,25 @@ def _hopkins155(args: argparse.Namespace) -> int:
     if overrides:
         title += ', ' + ', '.join(f'{k}={v}' for k, v in overrides.items())
     print(format_table(summarise(rows, wall_seconds=wall), title=title))
+    if args.oracle:
+        print()
+        print(format_oracle(rows))
     return 0
+
+
+def format_oracle(rows: Sequence[Row], failed_pct: float = 2.0) -> str:
+    """Search and energy failures among the sequences with error >= ``failed_pct``."""
+    failed = [r for r in rows if r.error_pct >= failed_pct]
+    search = sum(r.energy > r.truth_energy for r in failed)
+    points = sum(r.points for r in rows)
+    crossover = sum(r.crossover_pct * r.points for r in rows) / points if points else math.nan
+    return '\n'.join([
+        'Oracle: the ground-truth segmentation, models refitted to it, in the same energy',
+        f'  sequences with error < {failed_pct:g}%: {len(rows) - len(failed)}',
+        f'  search failures (result energy above the truth\'s): {search}',
+        f'  energy failures (the truth\'s energy not lower): {len(failed) - search}',
+        f'  points closer to another true motion\'s model than to their own: {crossover:.2f}%',
+    ])
 
 
 def main(argv: Sequence[str] | None = None) -> int:

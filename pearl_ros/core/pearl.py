@@ -215,6 +215,63 @@ def fit(
                        setting.scale)
 
 
+def evaluate_segmentation(
+    tracks: np.ndarray,
+    labels: np.ndarray,
+    config: PearlConfig | None = None,
+    rng: np.random.Generator | int | None = None,
+) -> tuple[float, np.ndarray]:
+    """The energy of a given segmentation, each segment with a model refitted to it.
+
+    With the same ``config`` and seed as a :func:`fit`, the energy is measured in the same
+    setting (same noise scale), so comparing it with ``fit(...).energy`` tells a search failure
+    (the optimiser stopped above this energy) from an energy failure (the energy prefers the
+    answer found). A segment too small or too degenerate for a model counts as outliers.
+
+    Parameters
+    ----------
+    tracks : (F, N, 2) float64, pixels
+    labels : (N,) int, segment 0..K-1 of each point, -1 for outliers
+    config : PearlConfig, optional
+    rng : numpy Generator, seed or None
+
+    Returns
+    -------
+    energy : float
+    residuals : (K, N) float64, pixels, of every point to each segment's model (NaN rows for
+        segments that got no model)
+    """
+    config = config or PearlConfig()
+    setting = _setting(tracks, config, np.random.default_rng(rng))
+    model, data = setting.model, setting.data
+    labels = np.asarray(labels)
+    if labels.shape != (data.shape[0],):
+        raise InputError(f'labels must have shape ({data.shape[0]},), got {labels.shape}')
+    m = model.min_samples
+    num = int(labels.max()) + 1 if labels.size else 0
+    residuals = np.full((num, data.shape[0]), np.nan)
+    inner = np.full(data.shape[0], OUTLIER, dtype=np.int64)
+    params, sigmas, rows = [], [], []
+    for k in range(num):
+        members = np.flatnonzero(labels == k)
+        if members.size <= m:
+            continue
+        start, ok = model.fit_minimal(data, members[None, :m])
+        new = model.refit(data, members, start[0])
+        if new is None:
+            continue
+        residuals[k] = model.residuals(data, new[None])[0]
+        sigma = noise_level(residuals[k, members], setting.dof, setting.floor, m)
+        if sigma is None:
+            continue
+        params.append(new)
+        sigmas.append(sigma)
+        rows.append(residuals[k])
+        inner[members] = len(params)
+    unary = setting.unary(np.asarray(rows).reshape(-1, data.shape[0]), np.asarray(sigmas))
+    return energy(setting.problem(unary), inner), residuals
+
+
 def _setting(tracks: np.ndarray, config: PearlConfig, rng: np.random.Generator) -> _Setting:
     model = get_model(config.model)
     data = model.data(tracks)  # validates tracks

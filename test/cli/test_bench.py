@@ -3,11 +3,19 @@
 from __future__ import annotations
 
 import csv
+import math
 from pathlib import Path
 
 import pytest
 
-from pearl_ros.cli.bench import Row, format_table, main, parse_overrides, summarise
+from pearl_ros.cli.bench import (
+    Row,
+    format_oracle,
+    format_table,
+    main,
+    parse_overrides,
+    summarise,
+)
 from pearl_ros.core.errors import InputError
 
 HOPKINS = Path(__file__).resolve().parents[2].parent / 'shared' / 'data' / 'hopkins155'
@@ -27,6 +35,8 @@ COLUMNS = [
     'seconds',
     'iterations',
     'energy',
+    'truth_energy',
+    'crossover_pct',
 ]
 
 
@@ -254,3 +264,33 @@ def test_unknown_sequence_is_an_error(capsys):
 def test_usage_errors_exit_1_with_one_line(capsys):
     assert main(['hopkins155']) == 1
     assert_one_line_error(capsys, 'PATH')
+
+
+def test_format_oracle_tells_search_failures_from_energy_failures():
+    def oracle_row(error, energy, truth, points, crossover):
+        return Row('x', 'traffic', 2, 2, points, 10, error, 1.0, 3, energy, truth, crossover)
+
+    rows = [
+        oracle_row(0.5, 10.0, 12.0, 100, 0.0),  # right
+        oracle_row(30.0, 15.0, 12.0, 100, 1.0),  # stopped above the truth: search failure
+        oracle_row(20.0, 9.0, 12.0, 200, 2.0),  # truth costs more: energy failure
+        oracle_row(9.0, 8.0, 8.0, 100, 0.0),  # a tie is not a search failure
+    ]
+    text = format_oracle(rows)
+    assert 'error < 2%: 1' in text
+    assert "search failures (result energy above the truth's): 1" in text
+    assert "energy failures (the truth's energy not lower): 2" in text
+    # Point-weighted: (0*100 + 1*100 + 2*200 + 0*100) / 500 = 1.00%
+    assert 'than to their own: 1.00%' in text
+
+
+@needs_hopkins
+def test_oracle_fills_the_truth_columns(hopkins_root, tmp_path, capsys):
+    out = tmp_path / 'rows.csv'
+    assert main(['hopkins155', str(hopkins_root), '--oracle', '--csv', str(out),
+                 '--only', SMALL[0]]) == 0
+    assert 'Oracle:' in capsys.readouterr().out
+    with open(out, newline='', encoding='utf-8') as handle:
+        row_ = next(csv.DictReader(handle))
+    assert math.isfinite(float(row_['truth_energy'])) and float(row_['truth_energy']) > 0
+    assert 0.0 <= float(row_['crossover_pct']) <= 100.0

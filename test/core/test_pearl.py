@@ -83,3 +83,25 @@ def test_non_finite_tracks_raise_input_error(affine_scene):
 def test_config_rejects_out_of_range_values_naming_the_field(field, value):
     with pytest.raises(InputError, match=field):
         PearlConfig(**{field: value})
+
+
+def test_evaluate_segmentation_gives_fit_its_own_energy_and_ranks_the_truth_first(affine_scene):
+    from pearl_ros.core.pearl import evaluate_segmentation
+
+    tracks, truth = affine_scene(sizes=(200, 150), noise=0.5, seed=2)
+    result = fit(tracks, rng=5)
+    own, _ = evaluate_segmentation(tracks, result.labels, rng=5)
+    assert own == pytest.approx(result.energy, rel=1e-9)
+    true_energy, residuals = evaluate_segmentation(tracks, truth, rng=5)
+    merged, _ = evaluate_segmentation(tracks, np.zeros_like(truth), rng=5)
+    assert true_energy < merged
+    # Independent check of the residual rows: each true motion fits its own points best.
+    assert np.mean(residuals.argmin(axis=0) == truth) > 0.99
+
+
+def test_evaluate_segmentation_rejects_labels_of_the_wrong_length(affine_scene):
+    from pearl_ros.core.pearl import evaluate_segmentation
+
+    tracks, truth = affine_scene(sizes=(40,))
+    with pytest.raises(InputError, match='labels'):
+        evaluate_segmentation(tracks, truth[:-1])
