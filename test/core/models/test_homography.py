@@ -10,7 +10,7 @@ from pearl_ros.core.errors import InputError
 from pearl_ros.core.models import get_model
 from pearl_ros.core.models._twoview import FAR
 from pearl_ros.core.models.homography import Homography
-from twoview_oracles import normalised_pairs, similarity
+from twoview_oracles import assert_batch_equals_singles, normalised_pairs, similarity
 
 
 @pytest.fixture
@@ -103,14 +103,7 @@ def test_fit_minimal_recovers_the_true_homography_from_four_exact_points(model, 
 def test_fit_minimal_batch_equals_one_sample_at_a_time(model, scene):
     truth = scene(n=300, kind='planar', noise=0.5, seed=2)
     samples = np.random.default_rng(2).integers(0, 300, (50, 4))
-    params, ok = model.fit_minimal(truth.data, samples)
-    for k in range(50):
-        one, one_ok = model.fit_minimal(truth.data, samples[k:k + 1])
-        assert one_ok[0] == ok[k]
-        np.testing.assert_allclose(one[0], params[k], atol=1e-12)
-    residuals = model.residuals(truth.data, params)
-    for k in (0, 23, 49):
-        np.testing.assert_allclose(model.residuals(truth.data, params[k:k + 1])[0], residuals[k])
+    assert_batch_equals_singles(model, truth.data, samples, (0, 23, 49))
 
 
 def test_fit_minimal_flags_degenerate_samples_without_raising(model, scene):

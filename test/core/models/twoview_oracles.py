@@ -18,3 +18,17 @@ def normalised_pairs(rows: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarr
     x1 = np.column_stack([rows[:, :2], np.ones(len(rows))]) @ T1.T
     x2 = np.column_stack([rows[:, 2:], np.ones(len(rows))]) @ T2.T
     return x1, x2, T1, T2
+
+
+def assert_batch_equals_singles(model, data: np.ndarray, samples: np.ndarray,
+                                probes: tuple[int, ...]) -> None:
+    """``fit_minimal`` on a batch equals one sample at a time; ``residuals`` likewise at
+    the hypotheses ``probes``."""
+    params, ok = model.fit_minimal(data, samples)
+    for k in range(samples.shape[0]):
+        one, one_ok = model.fit_minimal(data, samples[k:k + 1])
+        assert one_ok[0] == ok[k]
+        np.testing.assert_allclose(one[0], params[k], atol=1e-12)
+    residuals = model.residuals(data, params)
+    for k in probes:
+        np.testing.assert_allclose(model.residuals(data, params[k:k + 1])[0], residuals[k])
