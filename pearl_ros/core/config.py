@@ -1,12 +1,65 @@
-"""One typed configuration object for PEaRL; every default is written here once."""
+"""One typed configuration object for PEaRL; every default is written here once.
+
+Each field carries its description, unit and range as dataclass metadata, so that one check
+validates it here and the ROS node declares its parameters (descriptions, ranges) from the same
+source (:func:`parameter_specs`).
+"""
 
 from __future__ import annotations
 
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, field, fields
+from typing import Any
 
 from pearl_ros.core.errors import InputError
 
 MODEL_NAMES = ('affine', 'fundamental', 'homography')
+
+
+def spec(default: Any, doc: str, *, low: float | None = None, high: float | None = None,
+         choices: tuple[str, ...] | None = None) -> Any:
+    """A dataclass field with its description and allowed range (``low <= value <= high``)."""
+    return field(default=default, metadata={'doc': doc, 'low': low, 'high': high,
+                                            'choices': choices})
+
+
+@dataclass(frozen=True)
+class ParameterSpec:
+    """What a user-facing parameter is: name, default, type, description and range."""
+
+    name: str
+    default: Any
+    type: type
+    doc: str
+    low: float | None
+    high: float | None
+    choices: tuple[str, ...] | None
+
+
+def parameter_specs(cls: type) -> tuple[ParameterSpec, ...]:
+    """The :class:`ParameterSpec` of every field of a configuration dataclass ``cls``."""
+    return tuple(
+        ParameterSpec(f.name, f.default, type(f.default), f.metadata['doc'], f.metadata['low'],
+                      f.metadata['high'], f.metadata['choices'])
+        for f in fields(cls))
+
+
+def check_fields(config: Any) -> None:
+    """Raise InputError naming the first field of ``config`` of the wrong type or out of range."""
+    for item in parameter_specs(type(config)):
+        value = getattr(config, item.name)
+        # bool is an int subclass, and an int is an acceptable float: compare the kinds users see.
+        kind_ok = (isinstance(value, bool) if item.type is bool
+                   else isinstance(value, (int, float)) and not isinstance(value, bool)
+                   if item.type is float
+                   else isinstance(value, item.type) and not isinstance(value, bool))
+        if not kind_ok:
+            raise InputError(f'{item.name} must be of type {item.type.__name__}, got {value!r}')
+        if item.choices is not None and value not in item.choices:
+            raise InputError(f'{item.name} must be one of {item.choices}, got {value!r}')
+        if item.low is not None and not value >= item.low:
+            raise InputError(f'{item.name} must be >= {item.low}, got {value!r}')
+        if item.high is not None and not value <= item.high:
+            raise InputError(f'{item.name} must be <= {item.high}, got {value!r}')
 
 
 @dataclass(frozen=True)
@@ -19,35 +72,27 @@ class PearlConfig:
     those of D: one unit is a residual of one noise level.
     """
 
-    model: str = 'affine'  # motion model: affine | fundamental | homography
-    noise: float = 0.0  # px, scale of inlier residuals; 0 = estimated from the data
-    min_noise: float = 0.05  # px, floor of the estimated scale
-    outlier_threshold: float = 10.0  # noise levels; a larger residual makes a point an outlier
-    smoothness: float = 4.0  # lambda, cost units per cut neighbour edge of unit weight
-    label_cost: float = 1000.0  # beta, cost units per model in use
-    num_proposals: int = 200  # fresh minimal samples per proposal round
-    local_sampling: float = 0.8  # share of samples drawn from a point's neighbourhood (NAPSAC)
-    max_iterations: int = 10  # expand / re-estimate iterations per proposal round
-    rounds: int = 3  # proposal rounds: best models so far mixed with fresh samples
+    model: str = spec('affine', 'motion model: affine | fundamental | homography',
+                      choices=MODEL_NAMES)
+    noise: float = spec(0.0, 'px, scale of inlier residuals; 0 = estimated from the data',
+                        low=0.0, high=1e3)
+    min_noise: float = spec(0.05, 'px, floor of the estimated noise scale', low=1e-6, high=1e3)
+    outlier_threshold: float = spec(
+        10.0, 'noise levels; a larger residual makes a point an outlier', low=1e-3, high=1e6)
+    smoothness: float = spec(4.0, 'lambda, cost units per cut neighbour edge', low=0.0, high=1e6)
+    label_cost: float = spec(1000.0, 'beta, cost units per motion model in use',
+                             low=0.0, high=1e9)
+    num_proposals: int = spec(200, 'fresh minimal samples per proposal round', low=1, high=100000)
+    local_sampling: float = spec(
+        0.8, "share of samples drawn from a point's image neighbourhood (NAPSAC)",
+        low=0.0, high=1.0)
+    max_iterations: int = spec(10, 'expand / re-estimate iterations per proposal round',
+                               low=1, high=10000)
+    rounds: int = spec(3, 'proposal rounds: best models so far mixed with fresh samples',
+                       low=1, high=1000)
 
     def __post_init__(self) -> None:
-        if self.model not in MODEL_NAMES:
-            raise InputError(f'model must be one of {MODEL_NAMES}, got {self.model!r}')
-        positive = ('min_noise', 'outlier_threshold')
-        for name in positive:
-            value = getattr(self, name)
-            if not value > 0:
-                raise InputError(f'{name} must be > 0, got {value!r}')
-        for name in ('noise', 'smoothness', 'label_cost'):
-            value = getattr(self, name)
-            if not value >= 0:
-                raise InputError(f'{name} must be >= 0, got {value!r}')
-        for name in ('num_proposals', 'max_iterations', 'rounds'):
-            value = getattr(self, name)
-            if not (isinstance(value, int) and value >= 1):
-                raise InputError(f'{name} must be an integer >= 1, got {value!r}')
-        if not 0.0 <= self.local_sampling <= 1.0:
-            raise InputError(f'local_sampling must be in [0, 1], got {self.local_sampling!r}')
+        check_fields(self)
 
     @classmethod
     def field_names(cls) -> tuple[str, ...]:

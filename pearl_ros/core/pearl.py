@@ -152,6 +152,8 @@ def fit(
     tracks: np.ndarray,
     config: PearlConfig | None = None,
     rng: np.random.Generator | int | None = None,
+    init: np.ndarray | None = None,
+    deadline: float | None = None,
 ) -> PearlResult:
     """Segment tracked points into rigid motions; the number of motions is found, not given.
 
@@ -161,6 +163,14 @@ def fit(
         (two-view models use the first and the last frame).
     config : PearlConfig, optional
     rng : numpy Generator, seed or None
+    init : (N,) int, optional
+        A warm start: a segmentation (0..K-1, -1 for outlier or unknown) whose segments become the
+        first models, each refitted to its points, and the first labelling. The thesis' "mix the
+        optimal models with a new batch of samples" across calls (Isack, sec. 2.3.3).
+    deadline : float, optional
+        ``time.perf_counter()`` value after which no further expand / re-estimate iteration or
+        proposal round starts (the first one always runs). The result is then no longer a
+        function of the seed alone.
 
     Returns
     -------
@@ -175,13 +185,18 @@ def fit(
     model, data = setting.model, setting.data
     n = data.shape[0]
 
-    params = np.empty((0,) + _param_shape(model, data))
-    sigmas = np.empty(0)
-    residuals = np.empty((0, n))
-    labels = np.full(n, OUTLIER, dtype=np.int64)
+    if init is None:
+        params = np.empty((0,) + _param_shape(model, data))
+        sigmas = np.empty(0)
+        residuals = np.empty((0, n))
+        labels = np.full(n, OUTLIER, dtype=np.int64)
+    else:
+        params, sigmas, residuals, labels = _segment_models(setting, _check_labels(init, n))
     history: list[float] = []
     iterations = 0
     for _ in range(config.rounds):
+        if iterations and _past(deadline):
+            break
         start = time.perf_counter()
         fresh, fresh_sigmas, fresh_residuals = _propose(setting, labels, params, config, rng)
         params = np.concatenate([params, fresh])
@@ -192,7 +207,9 @@ def fit(
         timings['propose'] += time.perf_counter() - start
 
         current = energy(problem, labels)
-        for _ in range(config.max_iterations):
+        for step in range(config.max_iterations):
+            if step and _past(deadline):
+                break
             iterations += 1
             start = time.perf_counter()
             labels = sweep(problem, labels)
@@ -243,13 +260,39 @@ def evaluate_segmentation(
     """
     config = config or PearlConfig()
     setting = _setting(tracks, config, np.random.default_rng(rng))
-    model, data = setting.model, setting.data
+    n = setting.data.shape[0]
+    labels = _check_labels(labels, n)
+    params, sigmas, rows, inner = _segment_models(setting, labels)
+    num = int(labels.max()) + 1 if labels.size else 0
+    residuals = np.full((num, n), np.nan)
+    # Segment k got model inner[p] - 1 for any of its members p, if it got one.
+    for k in range(num):
+        members = np.flatnonzero(labels == k)
+        if members.size and inner[members[0]] != OUTLIER:
+            residuals[k] = rows[inner[members[0]] - 1]
+    unary = setting.unary(rows, sigmas)
+    return energy(setting.problem(unary), inner), residuals
+
+
+def _check_labels(labels: np.ndarray, n: int) -> np.ndarray:
     labels = np.asarray(labels)
-    if labels.shape != (data.shape[0],):
-        raise InputError(f'labels must have shape ({data.shape[0]},), got {labels.shape}')
+    if labels.shape != (n,) or not np.issubdtype(labels.dtype, np.integer):
+        raise InputError(f'labels must be integers of shape ({n},), got {labels.dtype} '
+                         f'{labels.shape}')
+    return labels.astype(np.int64)
+
+
+def _segment_models(setting: _Setting, labels: np.ndarray
+                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """One model per segment of ``labels`` (0..K-1, -1 outlier), refitted to its members.
+
+    A segment too small or too degenerate for a model becomes outliers. Returns the models'
+    params, noise levels and residual rows, and the labelling in the optimiser's numbering
+    (0 outlier, model k is label k + 1).
+    """
+    model, data = setting.model, setting.data
     m = model.min_samples
     num = int(labels.max()) + 1 if labels.size else 0
-    residuals = np.full((num, data.shape[0]), np.nan)
     inner = np.full(data.shape[0], OUTLIER, dtype=np.int64)
     params, sigmas, rows = [], [], []
     for k in range(num):
@@ -260,16 +303,22 @@ def evaluate_segmentation(
         new = model.refit(data, members, start[0])
         if new is None:
             continue
-        residuals[k] = model.residuals(data, new[None])[0]
-        sigma = noise_level(residuals[k, members], setting.dof, setting.floor, m)
+        row = model.residuals(data, new[None])[0]
+        sigma = noise_level(row[members], setting.dof, setting.floor, m)
         if sigma is None:
             continue
         params.append(new)
         sigmas.append(sigma)
-        rows.append(residuals[k])
+        rows.append(row)
         inner[members] = len(params)
-    unary = setting.unary(np.asarray(rows).reshape(-1, data.shape[0]), np.asarray(sigmas))
-    return energy(setting.problem(unary), inner), residuals
+    shape = (0,) + _param_shape(model, data)
+    return (np.asarray(params, dtype=np.float64).reshape((len(params),) + shape[1:]),
+            np.asarray(sigmas, dtype=np.float64), np.asarray(rows).reshape(-1, data.shape[0]),
+            inner)
+
+
+def _past(deadline: float | None) -> bool:
+    return deadline is not None and time.perf_counter() > deadline
 
 
 def _setting(tracks: np.ndarray, config: PearlConfig, rng: np.random.Generator) -> _Setting:

@@ -1,0 +1,262 @@
+"""Online motion segmentation: PEaRL over a sliding window, warm-started frame to frame.
+
+Each frame, the features whose tracks span the fitting frames of the window are segmented by
+:func:`pearl_ros.core.pearl.fit`. Warm-started (the default), that fit starts from the previous
+frame's segmentation of the same tracks (its models refitted to the current window) and adds a
+small batch of fresh proposals: the thesis' "mix the optimal models with a new batch of samples"
+(Isack, sec. 2.3.3), spread over frames. Features too young for the fit take the label of most of
+their labelled image neighbours.
+
+Label identity: motions carry numbers that persist. After each fit, its segments are matched
+one-to-one to the numbers their tracks had in the previous frame (the assignment that agrees on
+most tracks). A segment keeps the number it shares most tracks with, a segment made mostly of
+tracks that had no number, or that lost the matching, gets a fresh one, and a number matched to
+no segment is retired for good.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.optimize import linear_sum_assignment
+from scipy.spatial import cKDTree
+
+from pearl_ros.core.config import PearlConfig
+from pearl_ros.core.errors import InputError
+from pearl_ros.core.models import get_model
+from pearl_ros.core.pearl import fit
+from pearl_ros.online.config import OnlineConfig
+from pearl_ros.online.window import SlidingWindow
+
+UNLABELLED = -1
+_TWO_VIEW = ('fundamental', 'homography')
+
+
+@dataclass(frozen=True)
+class FrameResult:
+    """Labels of one frame and what it took to get them.
+
+    Attributes
+    ----------
+    stamp_ns : int
+    labels : (N,) int64, motion number of each input feature, in input order; -1 for an outlier,
+        a feature without finite coordinates or one that cannot be labelled yet
+    motions : int, motions in use in this frame
+    frames : int, frames the models were fitted over (0 when nothing could be fitted)
+    fitted : int, features whose tracks span those frames (the ones the optimiser saw)
+    model : str, the model family used for this frame ('' when nothing could be fitted)
+    reset : bool, the window was emptied before this frame because its stamp went back in time
+    warm : bool, the fit was warm-started
+    latency_s : float, seconds spent in :meth:`OnlineSegmenter.process`
+    """
+
+    stamp_ns: int
+    labels: np.ndarray
+    motions: int
+    frames: int
+    fitted: int
+    model: str
+    reset: bool
+    warm: bool
+    latency_s: float
+
+
+class OnlineSegmenter:
+    """Feed frames one at a time with :meth:`process`; labels keep their numbers over time.
+
+    Parameters
+    ----------
+    config : PearlConfig, optional
+        The energy and the cold-start optimiser.
+    online : OnlineConfig, optional
+        Window, warm start and per-frame budget.
+    """
+
+    def __init__(self, config: PearlConfig | None = None,
+                 online: OnlineConfig | None = None) -> None:
+        self.config = config or PearlConfig()
+        self.online = online or OnlineConfig()
+        self._rng = np.random.default_rng(self.online.seed)
+        self._window = SlidingWindow(self.online.window)
+        self._label_of_track: dict[int, int] = {}  # track key -> motion number, last frame
+        self._next_label = 0
+
+    @property
+    def frames_in_window(self) -> int:
+        return len(self._window)
+
+    def reset(self) -> None:
+        """Empty the window. Motion numbers already used are never given out again."""
+        self._window.clear()
+        self._label_of_track = {}
+
+    def reconfigure(self, config: PearlConfig | None = None,
+                    online: OnlineConfig | None = None) -> None:
+        """Apply new parameters from the next frame on; a new window size keeps the newest
+        frames that fit."""
+        if config is not None:
+            self.config = config
+        if online is not None:
+            self._window.resize(online.window)
+            if online.seed != self.online.seed:
+                self._rng = np.random.default_rng(online.seed)
+            self.online = online
+
+    def process(self, stamp_ns: int, ids: np.ndarray, uv: np.ndarray) -> FrameResult:
+        """Label one frame.
+
+        Parameters
+        ----------
+        stamp_ns : int, nanoseconds, later than the previous frame's; an earlier one (a bag
+            played in a loop) empties the window first
+        ids : (N,) int, tracker ids, unique within the frame
+        uv : (N, 2) float, pixels; features with a NaN or inf coordinate are labelled -1 and
+            treated as not seen in this frame
+
+        Raises
+        ------
+        InputError
+            On mismatched shapes, non-integer or duplicate ids, or a stamp equal to the previous
+            one. The segmenter's state is then unchanged.
+        """
+        start = time.perf_counter()
+        stamp_ns, ids, uv = _check_frame(stamp_ns, ids, uv)
+        last = self._window.last_stamp
+        reset = last is not None and stamp_ns < last
+        if last is not None and stamp_ns == last:
+            raise InputError(f'stamp {stamp_ns} ns repeats the previous frame\'s')
+        if reset:
+            self.reset()
+
+        finite = np.all(np.isfinite(uv), axis=1)
+        labels = np.full(ids.size, UNLABELLED, dtype=np.int64)
+        seen = np.flatnonzero(finite)
+        keys = self._window.push(stamp_ns, ids[seen], uv[seen])
+        coords, age = self._window.history(keys)
+
+        span = _span(age, self.online.min_coverage)
+        model_name = self._model_name(span)
+        fitted = np.flatnonzero(age >= span) if span >= 2 else np.empty(0, dtype=np.int64)
+        warm = False
+        motion_labels = np.full(keys.size, UNLABELLED, dtype=np.int64)
+        if fitted.size > get_model(model_name).min_samples:
+            tracks = coords[-span:, fitted]
+            if model_name in _TWO_VIEW:
+                tracks = tracks[[0, -1]]
+            prior = np.array([self._label_of_track.get(k, UNLABELLED) for k in keys[fitted]],
+                             dtype=np.int64)
+            warm = self.online.warm_start and bool(np.any(prior != UNLABELLED))
+            segments = self._fit(tracks, model_name, prior, warm, start)
+            motion_labels[fitted] = self._identify(segments, prior)
+            young = np.setdiff1d(np.arange(keys.size), fitted)
+            motion_labels[young] = _vote(uv[seen], fitted, motion_labels[fitted], young,
+                                         self.online.neighbours)
+        else:
+            span, model_name = 0, ''
+        labels[seen] = motion_labels
+        self._label_of_track = {int(k): int(v) for k, v in zip(keys, motion_labels)
+                                if v != UNLABELLED}
+        motions = np.unique(motion_labels[motion_labels != UNLABELLED]).size
+        return FrameResult(stamp_ns, labels, int(motions), span, int(fitted.size) if span else 0,
+                           model_name, reset, warm, time.perf_counter() - start)
+
+    def _model_name(self, span: int) -> str:
+        if self.config.model in _TWO_VIEW:
+            return self.config.model
+        return self.online.two_view_model if span == 2 else self.config.model
+
+    def _fit(self, tracks: np.ndarray, model_name: str, prior: np.ndarray, warm: bool,
+             start: float) -> np.ndarray:
+        """Segment ``tracks``; returns 0..K-1 per track, -1 outliers."""
+        config = dataclasses.replace(self.config, model=model_name)
+        init = None
+        if warm:
+            config = dataclasses.replace(config, num_proposals=self.online.warm_proposals,
+                                         rounds=self.online.warm_rounds)
+            _, init = np.unique(prior, return_inverse=True)
+            init = init.reshape(-1) - int(np.any(prior == UNLABELLED))
+        budget = self.online.budget_ms
+        deadline = start + budget / 1e3 if budget > 0 else None
+        return fit(tracks, config, self._rng, init=init, deadline=deadline).labels
+
+    def _identify(self, segments: np.ndarray, prior: np.ndarray) -> np.ndarray:
+        """Motion numbers for ``segments`` (0..K-1, -1), matched to the ``prior`` numbers."""
+        out = np.full(segments.size, UNLABELLED, dtype=np.int64)
+        num = int(segments.max()) + 1 if segments.size else 0
+        if num == 0:
+            return out
+        known = prior != UNLABELLED
+        olds, old_idx = np.unique(prior[known], return_inverse=True)
+        table = np.zeros((num, olds.size), dtype=np.int64)
+        ok = known & (segments != UNLABELLED)
+        np.add.at(table, (segments[ok], old_idx.reshape(-1)[ok[known]]), 1)
+        number = np.full(num, UNLABELLED, dtype=np.int64)
+        if olds.size:
+            rows, cols = linear_sum_assignment(table, maximize=True)
+            for r, c in zip(rows, cols):
+                # Keep a number only for a segment made mostly of tracks that carried it.
+                if 2 * table[r, c] > np.count_nonzero(segments == r):
+                    number[r] = olds[c]
+        for r in range(num):
+            if number[r] == UNLABELLED:
+                number[r] = self._next_label
+                self._next_label += 1
+        inlier = segments != UNLABELLED
+        out[inlier] = number[segments[inlier]]
+        return out
+
+
+def _check_frame(stamp_ns: int, ids: np.ndarray, uv: np.ndarray
+                 ) -> tuple[int, np.ndarray, np.ndarray]:
+    try:
+        stamp = int(stamp_ns)
+    except (TypeError, ValueError) as err:
+        raise InputError(f'stamp_ns must be an integer, got {stamp_ns!r}') from err
+    ids = np.asarray(ids)
+    uv = np.asarray(uv, dtype=np.float64)
+    if ids.ndim != 1:
+        raise InputError(f'ids must have shape (N,), got {ids.shape}')
+    if uv.shape != (ids.size, 2):
+        raise InputError(f'uv must have shape ({ids.size}, 2) to match ids, got {uv.shape}')
+    if ids.size and not np.issubdtype(ids.dtype, np.integer):
+        as_float = ids.astype(np.float64)
+        if not np.all(np.isfinite(as_float)) or np.any(as_float != np.round(as_float)):
+            raise InputError('ids must be integers')
+        ids = as_float.astype(np.int64)
+    ids = ids.astype(np.int64)
+    unique, counts = np.unique(ids, return_counts=True)
+    if np.any(counts > 1):
+        raise InputError(f'duplicate ids in one frame: {unique[counts > 1][:5].tolist()}')
+    return stamp, ids, uv
+
+
+def _span(age: np.ndarray, coverage: float) -> int:
+    """The most frames back that at least ``coverage`` of the features span (0 if none)."""
+    if age.size == 0:
+        return 0
+    # The k-th oldest age, k = ceil(coverage * N): that many features reach back this far.
+    need = max(int(np.ceil(coverage * age.size)), 1)
+    return int(np.sort(age)[::-1][need - 1])
+
+
+def _vote(uv: np.ndarray, fitted: np.ndarray, fitted_labels: np.ndarray, young: np.ndarray,
+          k: int) -> np.ndarray:
+    """Labels of the ``young`` features: the most common label among their ``k`` nearest
+    labelled ``fitted`` features in the image (ties to the nearer); -1 if none is labelled."""
+    out = np.full(young.size, UNLABELLED, dtype=np.int64)
+    labelled = fitted[fitted_labels != UNLABELLED]
+    if young.size == 0 or labelled.size == 0:
+        return out
+    votes = fitted_labels[fitted_labels != UNLABELLED]
+    k = min(k, labelled.size)
+    _, idx = cKDTree(uv[labelled]).query(uv[young], k=k)
+    idx = np.asarray(idx).reshape(young.size, k)
+    near = votes[idx]  # (Y, k), nearest first
+    for i, row in enumerate(near):
+        values, first, counts = np.unique(row, return_index=True, return_counts=True)
+        best = np.flatnonzero(counts == counts.max())
+        out[i] = values[best[np.argmin(first[best])]]
+    return out

@@ -1,0 +1,98 @@
+"""A sliding window over the last W frames of tracked features.
+
+Trackers give every feature an id that persists while it is tracked. Here a *track* is one
+unbroken run of an id: an id that is missing from a frame and comes back later starts a new
+track (trackers reuse ids, and a feature lost and re-detected is not known to be the same point).
+Tracks get keys from one increasing counter, so a track's frames are always the newest ones of
+the window and the window never holds more than W frames, however long the stream runs.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from dataclasses import dataclass
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class WindowFrame:
+    """One frame as the window holds it: track keys sorted, with their pixel coordinates."""
+
+    stamp_ns: int
+    keys: np.ndarray  # (N,) int64, sorted
+    uv: np.ndarray  # (N, 2) float64, pixels, rows in the order of keys
+
+
+class SlidingWindow:
+    """The last ``size`` frames, features keyed by track.
+
+    Parameters
+    ----------
+    size : int, frames kept (the newest included), >= 2
+    """
+
+    def __init__(self, size: int) -> None:
+        self.size = size
+        self._frames: deque[WindowFrame] = deque(maxlen=size)
+        self._key_of_id: dict[int, int] = {}  # ids of the newest frame -> their track keys
+        self._next_key = 0
+
+    def __len__(self) -> int:
+        return len(self._frames)
+
+    @property
+    def last_stamp(self) -> int | None:
+        return self._frames[-1].stamp_ns if self._frames else None
+
+    def resize(self, size: int) -> None:
+        """Hold ``size`` frames from now on, keeping the newest ones that fit."""
+        self.size = size
+        self._frames = deque(self._frames, maxlen=size)
+
+    def clear(self) -> None:
+        """Forget every frame and track (keys keep increasing: a new track is never an old one)."""
+        self._frames.clear()
+        self._key_of_id = {}
+
+    def push(self, stamp_ns: int, ids: np.ndarray, uv: np.ndarray) -> np.ndarray:
+        """Append a frame; returns the track key of each feature, in input order.
+
+        Parameters
+        ----------
+        stamp_ns : int, nanoseconds
+        ids : (N,) int64, unique tracker ids
+        uv : (N, 2) float64, pixels, finite
+        """
+        keys = np.empty(ids.size, dtype=np.int64)
+        previous = self._key_of_id
+        current: dict[int, int] = {}
+        for i, ident in enumerate(ids.tolist()):
+            key = previous.get(ident)
+            if key is None:
+                key = self._next_key
+                self._next_key += 1
+            keys[i] = key
+            current[ident] = key
+        self._key_of_id = current
+        order = np.argsort(keys, kind='stable')
+        self._frames.append(WindowFrame(stamp_ns, keys[order], uv[order]))
+        return keys
+
+    def history(self, keys: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The window's coordinates of tracks ``keys`` (all present in the newest frame).
+
+        Returns
+        -------
+        coords : (F, N, 2) float64, pixels, oldest frame first, NaN where a track was not yet born
+        age : (N,) int64, frames in the window holding the track (it holds the newest ``age``)
+        """
+        coords = np.full((len(self._frames), keys.size, 2), np.nan)
+        age = np.zeros(keys.size, dtype=np.int64)
+        for f, frame in enumerate(self._frames):
+            pos = np.searchsorted(frame.keys, keys)
+            pos = np.minimum(pos, max(frame.keys.size - 1, 0))
+            found = frame.keys[pos] == keys if frame.keys.size else np.zeros(keys.size, bool)
+            coords[f, found] = frame.uv[pos[found]]
+            age += found
+        return coords, age
