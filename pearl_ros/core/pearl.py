@@ -29,6 +29,7 @@ _NEIGHBOURS = 10  # image neighbours a local sample is drawn from
 _MAX_PASSES = 5  # expansion passes over the labels within one sweep
 _FLOOR = 0.5  # least model noise level, in units of the fresh-proposal level
 _SEGMENT_SAMPLES = 20  # minimal samples drawn inside each current segment per round
+_SPLIT_TRIES = 3  # expand-and-refit moves tried per iteration
 _PROPOSAL_LEVELS = (1.0, 2.0, 4.0)  # noise levels of a fresh hypothesis, in units of scale
 
 
@@ -216,6 +217,7 @@ def fit(
             timings['expand'] += time.perf_counter() - start
             start = time.perf_counter()
             _refit(setting, labels, params, sigmas, residuals, unary)
+            labels = _expand_refit(setting, problem, labels, params, sigmas, residuals, unary)
             timings['refit'] += time.perf_counter() - start
             new = energy(problem, labels)
             history.append(new)
@@ -410,6 +412,22 @@ def _param_shape(model: MotionModel, data: np.ndarray) -> tuple[int, ...]:
     return model.fit_minimal(data, sample)[0].shape[1:]
 
 
+def _refit_one(setting: _Setting, members: np.ndarray, start: np.ndarray
+               ) -> tuple[np.ndarray, float, np.ndarray, np.ndarray] | None:
+    """A model re-estimated from ``members``: params, noise level, residual row and data cost
+    row; None when the members are too few or degenerate."""
+    model = setting.model
+    new = model.refit(setting.data, members, start)
+    if new is None:
+        return None
+    residuals = model.residuals(setting.data, new[None])
+    sigma = noise_level(residuals[0, members], setting.dof, setting.floor, model.min_samples)
+    if sigma is None:
+        return None
+    row = data_costs(residuals, np.array([sigma]), setting.dof, setting.floor)[0]
+    return new, sigma, residuals[0], row
+
+
 def _refit(setting: _Setting, labels: np.ndarray, params: np.ndarray, sigmas: np.ndarray,
            residuals: np.ndarray, unary: np.ndarray) -> None:
     """Re-estimate every model in use, and its noise level, from its points; keep a refit only
@@ -417,25 +435,59 @@ def _refit(setting: _Setting, labels: np.ndarray, params: np.ndarray, sigmas: np
 
     ``params``, ``sigmas``, ``residuals`` and ``unary`` are updated in place, so the energy never goes up.
     """
-    model, data = setting.model, setting.data
     for label in np.unique(labels):
         if label == OUTLIER:
             continue
         members = np.flatnonzero(labels == label)
-        new = model.refit(data, members, params[label - 1])
-        if new is None:
+        fitted = _refit_one(setting, members, params[label - 1])
+        if fitted is not None and fitted[3][members].sum() < unary[label, members].sum():
+            params[label - 1], sigmas[label - 1], residuals[label - 1], unary[label] = fitted
+
+
+def _expand_refit(setting: _Setting, problem: Problem, labels: np.ndarray, params: np.ndarray,
+                  sigmas: np.ndarray, residuals: np.ndarray, unary: np.ndarray) -> np.ndarray:
+    """Expansion moves judged after the models that lose points are refitted to what is left.
+
+    A plain expansion of a tight model for one motion out of a loose model that covers two is
+    rejected: the loose model keeps its noise level until it is refitted, so the points left to
+    it still pay for it. Here the few most promising unused labels (by the sweep's gain bound)
+    are expanded, the losing models refitted, and the move kept only if the whole energy drops.
+    Arrays are updated in place, as in :func:`_refit`.
+    """
+    idx = np.arange(labels.size)
+    current = energy(problem, labels)
+    used = np.zeros(unary.shape[0], dtype=bool)
+    used[labels] = True
+    # By data gain alone: the refit of the losers may pay for the label cost.
+    gain = np.maximum(unary[labels, idx][None, :] - unary, 0.0).sum(axis=1)
+    gain[used] = -np.inf
+    for alpha in np.argsort(-gain, kind='stable')[:_SPLIT_TRIES]:
+        if not gain[alpha] > 0:
+            break
+        # Expanded as if alpha were free: its label cost is paid, if at all, by the refits.
+        free = problem.label_costs.copy()
+        free[alpha] = 0.0
+        moved = expansion_move(Problem(unary, problem.edges, problem.weights, free), labels,
+                               int(alpha))
+        losers = np.unique(labels[moved != labels])
+        losers = losers[losers != OUTLIER]
+        if losers.size == 0:
             continue
-        new_residuals = model.residuals(data, new[None])
-        sigma = noise_level(new_residuals[0, members], setting.dof, setting.floor,
-                            model.min_samples)
-        if sigma is None:
-            continue
-        row = data_costs(new_residuals, np.array([sigma]), setting.dof, setting.floor)[0]
-        if row[members].sum() < unary[label, members].sum():
-            params[label - 1] = new
-            sigmas[label - 1] = sigma
-            residuals[label - 1] = new_residuals[0]
-            unary[label] = row
+        trial = unary.copy()
+        refits = {}
+        for label in losers:
+            members = np.flatnonzero(moved == label)
+            fitted = _refit_one(setting, members, params[label - 1]) if members.size else None
+            if fitted is not None:
+                refits[label] = fitted
+                trial[label] = fitted[3]
+        moved_energy = energy(Problem(trial, problem.edges, problem.weights,
+                                      problem.label_costs), moved)
+        if moved_energy < current - 1e-9:
+            labels, current = moved, moved_energy
+            for label, fitted in refits.items():
+                params[label - 1], sigmas[label - 1], residuals[label - 1], unary[label] = fitted
+    return labels
 
 
 def _compress(labels: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -84,7 +84,6 @@ class OnlineSegmenter:
         self._window = SlidingWindow(self.online.window)
         self._label_of_track: dict[int, int] = {}  # track key -> motion number, last frame
         self._next_label = 0
-        self._last_span = 0
         self._scales: dict[str, tuple[float, int]] = {}  # model -> (px, fitted frames since)
 
     @property
@@ -96,7 +95,6 @@ class OnlineSegmenter:
         self._window.clear()
         self._label_of_track = {}
         self._scales = {}
-        self._last_span = 0
 
     def reconfigure(self, config: PearlConfig | None = None,
                     online: OnlineConfig | None = None) -> None:
@@ -153,8 +151,7 @@ class OnlineSegmenter:
                 tracks = tracks[[0, -1]]
             prior = np.array([self._label_of_track.get(k, UNLABELLED) for k in keys[fitted]],
                              dtype=np.int64)
-            warm = (self.online.warm_start and bool(np.any(prior != UNLABELLED))
-                    and span == self._last_span)
+            warm = self.online.warm_start and bool(np.any(prior != UNLABELLED))
             segments = self._fit(tracks, model_name, prior, warm, start)
             motion_labels[fitted] = self._identify(segments, prior)
             young = np.setdiff1d(np.arange(keys.size), fitted)
@@ -163,7 +160,6 @@ class OnlineSegmenter:
         else:
             span, model_name = 0, ''
         labels[seen] = motion_labels
-        self._last_span = span
         self._label_of_track = {int(k): int(v) for k, v in zip(keys, motion_labels)
                                 if v != UNLABELLED}
         motions = np.unique(motion_labels[motion_labels != UNLABELLED]).size
