@@ -30,6 +30,8 @@ _MAX_PASSES = 5  # expansion passes over the labels within one sweep
 _FLOOR = 0.5  # least model noise level, in units of the fresh-proposal level
 _SEGMENT_SAMPLES = 20  # minimal samples drawn inside each current segment per round
 _SPLIT_TRIES = 3  # expand-and-refit moves tried per iteration
+_SPLIT_SCREEN = 60  # best unused labels screened for them
+_SPLIT_SHARE = (0.05, 0.9)  # share of a segment a split candidate must fit better
 _PROPOSAL_LEVELS = (1.0, 2.0, 4.0)  # noise levels of a fresh hypothesis, in units of scale
 
 
@@ -461,9 +463,23 @@ def _expand_refit(setting: _Setting, problem: Problem, labels: np.ndarray, param
     # By data gain alone: the refit of the losers may pay for the label cost.
     gain = np.maximum(unary[labels, idx][None, :] - unary, 0.0).sum(axis=1)
     gain[used] = -np.inf
-    for alpha in np.argsort(-gain, kind='stable')[:_SPLIT_TRIES]:
-        if not gain[alpha] > 0:
+    # A useful split takes part of a segment, not all of it: a near copy of the segment's own
+    # model has a large gain but leaves nothing to refit. Candidates are screened by the share
+    # of their best-supported segment that they fit better.
+    size = np.bincount(labels, minlength=unary.shape[0])
+    current_costs = unary[labels, idx]
+    candidates = []
+    for alpha in np.argsort(-gain, kind='stable')[:_SPLIT_SCREEN]:
+        if not gain[alpha] > 0 or len(candidates) == _SPLIT_TRIES:
             break
+        taken = labels[(unary[alpha] < current_costs) & (labels != OUTLIER)]
+        if taken.size == 0:
+            continue
+        counts = np.bincount(taken, minlength=unary.shape[0])
+        share = counts / np.maximum(size, 1)
+        if np.any((share >= _SPLIT_SHARE[0]) & (share <= _SPLIT_SHARE[1])):
+            candidates.append(alpha)
+    for alpha in candidates:
         # Expanded as if alpha were free: its label cost is paid, if at all, by the refits.
         free = problem.label_costs.copy()
         free[alpha] = 0.0
@@ -475,7 +491,8 @@ def _expand_refit(setting: _Setting, problem: Problem, labels: np.ndarray, param
             continue
         trial = unary.copy()
         refits = {}
-        for label in losers:
+        # The new model is refitted to what it took too, like the losers to what they kept.
+        for label in (*losers, alpha):
             members = np.flatnonzero(moved == label)
             fitted = _refit_one(setting, members, params[label - 1]) if members.size else None
             if fitted is not None:

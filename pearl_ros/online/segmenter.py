@@ -137,6 +137,9 @@ class OnlineSegmenter:
         finite = np.all(np.isfinite(uv), axis=1)
         labels = np.full(ids.size, UNLABELLED, dtype=np.int64)
         seen = np.flatnonzero(finite)
+        # Features in id order: the proposals sample by position, so that labels must not depend
+        # on the order a tracker lists its features in.
+        seen = seen[np.argsort(ids[seen], kind='stable')]
         keys = self._window.push(stamp_ns, ids[seen], uv[seen])
         coords, age = self._window.history(keys)
 

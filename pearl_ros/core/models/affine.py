@@ -86,6 +86,8 @@ class AffineSubspace:
             params = params[None]
         mean, basis = params[:, :, 0], params[:, :, 1:]
         num, dims = mean.shape
+        if num == 0:
+            return np.empty((0, data.shape[0]))
         # ||x - m||^2 - ||B^T (x - m)||^2, expanded so that no (K, N, D) array is formed and the
         # heavy products are matrix products (BLAS).
         x_sq = np.einsum('nd,nd->n', data, data)
