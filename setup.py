@@ -28,6 +28,7 @@ setup(
             'pearl_make_bag = pearl_ros.cli.make_bag:main',
             'pearl_bench = pearl_ros.cli.bench:main',
             'pearl_segment_bag = pearl_ros.cli.segment_bag:main',
+            'pearl_replay = pearl_ros.cli.replay:main',
         ],
     },
 )
