@@ -59,7 +59,7 @@ def _numpy_float32(values: np.ndarray) -> Any:
 
 
 def array_uint8(values: np.ndarray) -> array.array:
-    """``values`` as ``array.array('B')`` (what rclpy's ``uint8[]`` setters take without a loop)."""
+    """``values`` as ``array.array('B')``, what rclpy's ``uint8[]`` setters take unlooped."""
     return array.array('B', np.ascontiguousarray(values, dtype=np.uint8).tobytes())
 
 
@@ -104,7 +104,7 @@ class MessageTypes:
 
     @classmethod
     def from_modules(cls, sensor_msgs: Any, geometry_msgs: Any) -> MessageTypes:
-        """The classes of the rclpy message modules ``sensor_msgs.msg`` and ``geometry_msgs.msg``."""
+        """The classes of the rclpy modules ``sensor_msgs.msg`` and ``geometry_msgs.msg``."""
         return cls(
             PointCloud2=sensor_msgs.PointCloud2,
             PointField=sensor_msgs.PointField,
@@ -329,3 +329,65 @@ def _check_range(values: np.ndarray, low: int, high: int, what: str) -> None:
     bad = (values < low) | (values >= high)
     if bad.any():
         raise InputError(f'{what} out of range: {values[bad][:3].tolist()}')
+
+
+# -------------------------------------------------------------------------------------------
+# Input checks and caps that decode.py does not make, shared by the node and pearl_replay so
+# that both answer the same message in the same way.
+
+
+def check_float32_ids(ids: np.ndarray) -> None:
+    """Refuse PointCloud ids beyond ``2**24``: float32 channels cannot hold them exactly.
+
+    Above ``2**24`` neighbouring integers share one float32, so two tracks can arrive with one
+    id, or one track can change id: nothing downstream could be trusted.
+
+    Raises
+    ------
+    InputError
+        Naming the first offending ids.
+    """
+    ids = np.asarray(ids)
+    bad = np.abs(ids) > decode.FLOAT32_EXACT_ID
+    if bad.any():
+        raise InputError(
+            f'PointCloud feature ids above 2**24 are not exact in float32: {ids[bad][:3].tolist()}'
+        )
+
+
+def check_label_ids(ids: np.ndarray) -> None:
+    """Refuse ids that the ``motion_labels`` uint32 ``id`` field cannot hold."""
+    ids = np.asarray(ids)
+    bad = (ids < 0) | (ids >= 2**32)
+    if bad.any():
+        raise InputError(f'feature ids must be in [0, 2**32), got {ids[bad][:3].tolist()}')
+
+
+# Fibonacci hashing (Knuth, TAOCP vol. 3, 6.4): 2**64 / golden ratio, odd.
+_GOLDEN = np.uint64(0x9E3779B97F4A7C15)
+
+
+def subsample_mask(ids: np.ndarray, limit: int) -> np.ndarray:
+    """(N,) bool: at most ``limit`` features, picked by a hash of their ids.
+
+    The features with the ``limit`` smallest hashes are kept. The hash depends on the id only,
+    so a track kept in one frame is kept in the next one as long as the cap bites alike, and a
+    track's history in the window stays whole; the input order plays no part. Ties (equal
+    hashes need equal ids, which decode refuses) cannot occur.
+
+    Parameters
+    ----------
+    ids : (N,) int, unique
+    limit : int >= 1
+    """
+    ids = np.asarray(ids)
+    if limit < 1:
+        raise InputError(f'limit must be >= 1, got {limit}')
+    keep = np.ones(ids.size, dtype=bool)
+    if ids.size <= limit:
+        return keep
+    with np.errstate(over='ignore'):  # multiplication modulo 2**64 is the point
+        hashes = ids.astype(np.int64).view(np.uint64) * _GOLDEN
+    keep[:] = False
+    keep[np.argpartition(hashes, limit - 1)[:limit]] = True
+    return keep
