@@ -28,7 +28,7 @@ from rosbags.rosbag2 import ReaderError as Ros2ReaderError
 from rosbags.serde import SerdeError
 from rosbags.typesys import Stores, TypesysError, get_typestore
 
-from pearl_ros.bagio import decode
+from pearl_ros.bagio import decode, encode
 from pearl_ros.core.errors import BagError, InputError
 
 TYPESTORE = get_typestore(Stores.ROS2_KILTED)
@@ -265,11 +265,12 @@ def open_feature_stream(
 def decode_feature_message(
     msg: Any, msgtype: str, layout: str = 'auto', camera_id: int = 0
 ) -> FeatureFrame:
-    """The :class:`FeatureFrame` of one feature message, refusing what a segmenter cannot use.
+    """The :class:`FeatureFrame` of one feature message, refusing what the node refuses.
 
-    Beyond :mod:`~pearl_ros.bagio.decode`'s checks: an empty cloud (no features to label) and
-    PointCloud ids above ``2**24`` (float32 channels hold integers exactly only up to there, so
-    two tracks may already have been merged into one id) are malformed here.
+    Beyond :mod:`~pearl_ros.bagio.decode`'s checks, as ``pearl_node`` does: PointCloud ids above
+    ``2**24`` (float32 channels hold integers exactly only up to there, so two tracks may already
+    share one id), ids the ``motion_labels`` uint32 field cannot hold, and an empty cloud (nothing
+    to label).
 
     Raises
     ------
@@ -280,13 +281,10 @@ def decode_feature_message(
         ids, uv = decode.decode_pointcloud2(msg)
     elif msgtype == POINTCLOUD:
         ids, uv = decode.decode_pointcloud(msg, layout, camera_id)
-        big = np.abs(ids) > decode.FLOAT32_EXACT_ID
-        if big.any():
-            raise InputError(
-                f'PointCloud ids above 2**24 are not exact in float32: {ids[big][:3].tolist()}'
-            )
+        encode.check_float32_ids(ids)
     else:
         raise InputError(f'{msgtype} is not a feature message type {FEATURE_TYPES}')
+    encode.check_label_ids(ids)
     if ids.size == 0:
         raise InputError('empty cloud: no features')
     return FeatureFrame(decode.stamp_ns(msg.header), ids, uv)

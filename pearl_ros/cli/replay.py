@@ -66,9 +66,12 @@ _Time: Any = TYPESTORE.types['builtin_interfaces/msg/Time']
 # pearl_node's own parameters (pearl_ros.ros.params.NODE_SPECS, which needs rclpy to import).
 # A node parameter file may hold them: the ones that change what is computed apply here too, the
 # ones about live transport (subscription type, QoS, timers) have no meaning in a replay.
-NODE_APPLIED = ('layout', 'camera_id', 'background_motion')
-NODE_IGNORED = ('msg_type', 'qos', 'qos_depth', 'diagnostics_period', 'max_features')
-_NODE_DEFAULTS: dict[str, Any] = {'layout': 'auto', 'camera_id': 0, 'background_motion': -1}
+# Their defaults are the node's (a test compares them with NODE_SPECS).
+NODE_APPLIED = ('layout', 'camera_id', 'max_features', 'background_motion')
+NODE_IGNORED = ('msg_type', 'qos', 'qos_depth', 'diagnostics_period')
+_NODE_DEFAULTS: dict[str, Any] = {
+    'layout': 'auto', 'camera_id': 0, 'max_features': 2000, 'background_motion': -1,
+}
 _ROS_NODE_NAMES = ('pearl_node', '/pearl_node', '/**')
 
 _MAX_WARNINGS = 20  # skipped messages reported one by one on stderr; the rest only counted
@@ -82,7 +85,8 @@ class ReplayStats:
     ----------
     frames : list of dict
         One row per frame processed: ``index`` (position on the input topic), ``stamp_ns``,
-        ``features``, ``labelled`` (label != -1), ``motions``, ``static`` (features on
+        ``features``, ``segmented`` (fed to the segmenter: at most ``max_features``),
+        ``labelled`` (label != -1), ``motions``, ``static`` (features on
         static_features), ``latency_ms`` (time in ``OnlineSegmenter.process``), ``reset``,
         ``warm``, ``model``, ``window_frames`` (frames the models were fitted over).
     skipped : list of dict
@@ -150,6 +154,7 @@ class ReplaySettings:
     truth_topic: str = TRUTH_TOPIC
     layout: str = 'auto'
     camera_id: int = 0
+    max_features: int = 2000
     background_motion: int = -1
     storage: str = 'mcap'
     config: PearlConfig = field(default_factory=PearlConfig)
@@ -188,8 +193,9 @@ def replay(
     Raises
     ------
     BagError
-        Missing or corrupt input, unknown topic, wrong type, existing output without ``force``,
-        failure to write. Nothing is left at ``out_bag`` then.
+        Missing or corrupt input, unknown topic, wrong type, no readable message at all,
+        existing output without ``force``, failure to write. Nothing is left at ``out_bag``
+        then (an existing bag stays as it was).
     InputError
         Bad settings.
     """
@@ -245,6 +251,13 @@ def replay(
                 done += 1
                 if progress is not None:
                     progress(done, total)
+            if stats.skipped and not stats.frames:
+                # Nothing to show for the run: most likely the wrong topic or layout.
+                first = stats.skipped[0]['reason']
+                raise BagError(
+                    f'none of the {len(stats.skipped)} messages on {settings.input_topic} could '
+                    f'be read (first: {first})'
+                )
             stats.copied = {topic: out.counts[topic] for topic in stream.copied}
     stats.wall_s = time.perf_counter() - start
     return stats
@@ -261,14 +274,18 @@ def _replay_one(
     if item.frame is None:
         return item.error or 'unreadable'
     frame = item.frame
+    # As the node: above max_features, a subsample chosen by a hash of the ids is segmented.
+    segmented = encode.subsample_mask(frame.ids, settings.max_features)
     try:
-        result = segmenter.process(frame.stamp_ns, frame.ids, frame.uv)
+        result = segmenter.process(frame.stamp_ns, frame.ids[segmented], frame.uv[segmented])
     except InputError as err:  # e.g. a stamp equal to the previous one; state unchanged
         return ' '.join(str(err).split())
+    labels = np.full(frame.ids.size, encode.UNLABELLED, dtype=np.int64)
+    labels[segmented] = result.labels
     background = None if settings.background_motion < 0 else settings.background_motion
-    keep = encode.static_mask(result.labels, background)
+    keep = encode.static_mask(labels, background)
     header = _ros2_header(item.msg.header)
-    labels_msg = encode.motion_labels(header, frame.ids, frame.uv, result.labels, MESSAGE_TYPES)
+    labels_msg = encode.motion_labels(header, frame.ids, frame.uv, labels, MESSAGE_TYPES)
     static_msg = encode.static_features(
         item.msg, keep, MESSAGE_TYPES, settings.layout, settings.camera_id
     )
@@ -279,7 +296,8 @@ def _replay_one(
         'index': item.index,
         'stamp_ns': frame.stamp_ns,
         'features': int(frame.ids.size),
-        'labelled': int(np.count_nonzero(result.labels != encode.UNLABELLED)),
+        'segmented': int(segmented.sum()),
+        'labelled': int(np.count_nonzero(labels != encode.UNLABELLED)),
         'motions': result.motions,
         'static': int(keep.sum()),
         'latency_ms': result.latency_s * 1e3,
@@ -389,8 +407,7 @@ def settings_from(
     known = set(known_names())
     unknown = sorted(set(values) - known - set(NODE_APPLIED) - set(NODE_IGNORED))
     if unknown:
-        names = ', '.join(known_names() + NODE_APPLIED)
-        raise InputError(f'unknown parameter {unknown[0]!r} (known: {names})')
+        raise _unknown(unknown[0])
     config, online = build_configs({k: v for k, v in values.items() if k in known})
     node = {**_NODE_DEFAULTS, **{k: values[k] for k in NODE_APPLIED if k in values}}
     node.update({k: v for k, v in overrides.items() if v is not None and k in node})
@@ -399,9 +416,13 @@ def settings_from(
     background = _typed(node['background_motion'], int, 'background_motion')
     if background < -1:
         raise InputError(f'background_motion must be >= -1, got {background}')
+    max_features = _typed(node['max_features'], int, 'max_features')
+    if max_features < 1:
+        raise InputError(f'max_features must be >= 1, got {max_features}')
     rest = {k: v for k, v in overrides.items() if v is not None and k not in node}
     return ReplaySettings(config=config, online=online, layout=node['layout'],
-                          camera_id=node['camera_id'], background_motion=background, **rest)
+                          camera_id=node['camera_id'], max_features=max_features,
+                          background_motion=background, **rest)
 
 
 class _Parser(argparse.ArgumentParser):
@@ -613,6 +634,7 @@ def _ros2_header(header: Any) -> Any:
 def _parameters(settings: ReplaySettings) -> dict[str, Any]:
     values = {**dataclasses.asdict(settings.config), **dataclasses.asdict(settings.online)}
     values.update(layout=settings.layout, camera_id=settings.camera_id,
+                  max_features=settings.max_features,
                   background_motion=settings.background_motion)
     return values
 
@@ -622,7 +644,12 @@ def _parse_assignments(items: Sequence[str]) -> dict[str, Any]:
     node_items, config_items = [], []
     for item in items:
         name = item.partition('=')[0].strip()
-        (node_items if name in NODE_APPLIED + NODE_IGNORED else config_items).append(item)
+        if name in NODE_APPLIED + NODE_IGNORED:
+            node_items.append(item)
+        elif '=' in item and name and name not in known_names():
+            raise _unknown(name)
+        else:
+            config_items.append(item)
     values = parse_assignments(config_items)
     for item in node_items:
         name, _, text = item.partition('=')
@@ -636,6 +663,11 @@ def _parse_assignments(items: Sequence[str]) -> dict[str, Any]:
         else:
             values[name] = text
     return values
+
+
+def _unknown(name: str) -> InputError:
+    names = ', '.join(known_names() + NODE_APPLIED)
+    return InputError(f'unknown parameter {name!r} (known: {names})')
 
 
 def _typed(value: Any, kind: type, name: str) -> Any:
