@@ -11,6 +11,7 @@ says so and labels would depend on the load, so no oracle could match them.
 from __future__ import annotations
 
 import json
+import shlex
 import shutil
 import subprocess
 import sys
@@ -648,3 +649,20 @@ def test_the_replay_runs_without_ros() -> None:
                           check=False)
     assert done.returncode == 0, done.stderr
     assert done.stdout == 'ok\n'
+
+
+def test_the_readme_examples_run(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+                                 capsys: pytest.CaptureFixture[str]) -> None:
+    text = (REPO / 'README.md').read_text()
+    section = text[text.index('## Replaying bags'):]
+    section = section[:section.index('\n## ', 1)]
+    commands = [line for line in section.splitlines()
+                if line.startswith('.venv/bin/pearl_replay ')]
+    assert len(commands) == 2
+    monkeypatch.chdir(tmp_path)  # outputs are relative paths; inputs are in the repository
+    for line in commands:
+        args = shlex.split(line)[1:]
+        args = [str(REPO / a) if a.startswith(('bags/', 'config/')) else a for a in args]
+        assert main(args) == 0, capsys.readouterr().err
+    assert json.loads((tmp_path / 'labels_1R2RCR_g12.json').read_text())['counts']['frames'] == 24
+    assert len(messages(tmp_path / 'labels_ros1', LABELS)) == 24
