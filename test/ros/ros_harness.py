@@ -91,17 +91,21 @@ class Probe:
         assert self.ros.spin_until(
             lambda: self.publisher.get_subscription_count() > 0
             and self.node.count_publishers(f'{self.ros.ns}/motion_labels') > 0
+            and self.node.count_publishers(f'{self.ros.ns}/static_features') > 0
             and self.node.count_subscribers(f'{self.ros.ns}/features') > 0, timeout)
         del node
 
     def send(self, msg: Any, *, answered: bool = True, timeout: float = 5.0) -> PointCloud2 | None:
-        """Publish ``msg``; with ``answered``, spin until its labels arrive and return them."""
+        """Publish ``msg``; with ``answered``, spin until its labels and static features arrive
+        and return the labels."""
         stamp = decode.stamp_ns(msg.header)
         self.publisher.publish(msg)
         if not answered:
             return None
-        assert self.ros.spin_until(lambda: self.labels_for(stamp) is not None, timeout), (
-            f'no motion_labels for stamp {stamp}')
+        assert self.ros.spin_until(
+            lambda: self.labels_for(stamp) is not None
+            and any(decode.stamp_ns(m.header) == stamp for m in self.static), timeout), (
+            f'no motion_labels or static_features for stamp {stamp}')
         return self.labels_for(stamp)
 
     def labels_for(self, stamp: int) -> PointCloud2 | None:
