@@ -223,3 +223,11 @@ def test_launch_file_remaps_features_to_the_tracker_and_loads_the_defaults() -> 
     keywords = {k.arg for k in calls[0].keywords}
     assert {'package', 'executable', 'parameters', 'remappings'} <= keywords
     assert Path(REPO / 'setup.py').read_text().count("glob('launch/*.launch.py')") == 1
+
+
+def test_readme_parameter_table_lists_every_parameter_as_declared() -> None:
+    readme = (REPO / 'README.md').read_text()
+    assert params.markdown_table() in readme, (
+        'regenerate: python -m pearl_ros.ros.params --markdown')
+    for item in params.ALL_SPECS:
+        assert f'| `{item.name}` |' in readme
