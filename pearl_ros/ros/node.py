@@ -117,6 +117,7 @@ class PearlNode(Node):
         self._static_pub = self.create_publisher(self._msg_class, 'static_features', output_qos)
         self._diagnostics_pub = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
         self._reset_srv = self.create_service(Trigger, '~/reset', self._on_reset)
+        self.add_pre_set_parameters_callback(_ints_as_floats)
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self._timer = self.create_timer(settings.diagnostics_period, self._on_timer)
         self.get_logger().info(
@@ -300,6 +301,20 @@ class PearlNode(Node):
             text += f' ({suppressed} more like it in the last {now - last:.0f} s)'
         self._warned[kind] = (now, 0)
         self.get_logger().warning(text)
+
+
+_FLOAT_NAMES = frozenset(item.name for item in params.ALL_SPECS if item.type is float)
+
+
+def _ints_as_floats(parameters: list[Parameter[Any]]) -> list[Parameter[Any]]:
+    """An integer given for a float parameter is that float (``ros2 param set ... 500``).
+
+    Runs before rclpy's type check, which would refuse it with a reason that names no
+    parameter; ``build_configs`` does the same for YAML files and ``--set``.
+    """
+    return [Parameter(p.name, Parameter.Type.DOUBLE, float(p.value))
+            if p.name in _FLOAT_NAMES and p.type_ == Parameter.Type.INTEGER else p
+            for p in parameters]
 
 
 def _header(node: Node) -> Header:

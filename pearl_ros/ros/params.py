@@ -196,5 +196,31 @@ def _yaml_value(value: Any) -> str:
     return str(value)
 
 
+
+
+def markdown_table() -> str:
+    """The README's parameter table (a test checks that the README holds it verbatim)."""
+    rows = ['| parameter | default | range | description |', '| --- | --- | --- | --- |']
+    for item in ALL_SPECS:
+        if item.choices is not None:
+            allowed = ' \\| '.join(item.choices)
+        elif item.low is not None or item.high is not None:
+            allowed = f'{_number(item.low)} .. {_number(item.high)}'
+        else:
+            allowed = 'true \\| false' if item.type is bool else ''
+        doc = item.doc.replace('|', '\\|') + (' (read-only)' if item.name in READ_ONLY else '')
+        rows.append(f'| `{item.name}` | `{_yaml_value(item.default)}` | {allowed} | {doc} |')
+    return '\n'.join(rows) + '\n'
+
+
+def _number(value: float | None) -> str:
+    if value is None:
+        return ''
+    if value == _INT64:
+        return '2^63-1'
+    return f'{value:g}'
+
+
 if __name__ == '__main__':
-    sys.stdout.write(defaults_yaml())
+    # python -m pearl_ros.ros.params > config/pearl.yaml; --markdown: the README's table.
+    sys.stdout.write(markdown_table() if sys.argv[1:] == ['--markdown'] else defaults_yaml())

@@ -330,3 +330,29 @@ def test_rclpy_and_rosbags_outputs_decode_to_the_same_fields() -> None:
     assert [(f.name, f.offset, f.datatype, f.count) for f in from_rclpy.fields] == [
         (f.name, f.offset, f.datatype, f.count) for f in from_rosbags.fields]
     np.testing.assert_array_equal(from_rclpy.data, from_rosbags.data)
+
+
+# ------------------------------------------------------------------ shared input checks
+
+
+def test_float32_ids_up_to_2_pow_24_pass_and_beyond_are_refused() -> None:
+    from pearl_ros.bagio.encode import check_float32_ids
+
+    check_float32_ids(np.array([0, 2**24, -(2**24)]))
+    with pytest.raises(InputError, match='16777218'):
+        check_float32_ids(np.array([5, 2**24 + 2]))
+
+
+def test_subsample_keeps_the_same_ids_whatever_their_order_and_company() -> None:
+    from pearl_ros.bagio.encode import subsample_mask
+
+    rng = np.random.default_rng(1)
+    ids = rng.choice(10**6, size=500, replace=False)
+    keep = subsample_mask(ids, 100)
+    assert keep.sum() == 100
+    order = rng.permutation(ids.size)
+    np.testing.assert_array_equal(subsample_mask(ids[order], 100), keep[order])
+    # A kept id stays kept when unkept ids leave: the choice is a threshold on a hash of the id.
+    fewer = np.concatenate((ids[keep], ids[~keep][:200]))
+    assert subsample_mask(fewer, 100)[:100].all()
+    assert subsample_mask(ids[:50], 100).all()

@@ -91,17 +91,43 @@ class Probe:
         assert self.ros.spin_until(
             lambda: self.publisher.get_subscription_count() > 0
             and self.node.count_publishers(f'{self.ros.ns}/motion_labels') > 0
+            and self.node.count_publishers(f'{self.ros.ns}/static_features') > 0
             and self.node.count_subscribers(f'{self.ros.ns}/features') > 0, timeout)
         del node
 
+    def handshake(self, stamp_ns: int, timeout: float = 30.0) -> None:
+        """Across processes: publish one-feature clouds until one is answered.
+
+        Matching is decided on each side separately: our writer may match the node's reader
+        before the node's labels writer matches our reader, and an answer sent then is lost.
+        Once one answer came back, both directions are matched. Stamps count up from
+        ``stamp_ns`` in 1 ms steps (keep them before the test's own frames).
+        """
+        sent = 0
+        def answered() -> bool:
+            nonlocal sent
+            if self.labels:
+                return True
+            self.publisher.publish(vins_cloud(stamp_ns + sent * 1_000_000, [0], [[1.0, 1.0]]))
+            sent += 1
+            self.ros.spin_until(lambda: bool(self.labels), 0.2)
+            return bool(self.labels)
+        assert self.ros.spin_until(answered, timeout), 'no answer from the node'
+        self.ros.spin_until(lambda: len(self.static) >= len(self.labels), 2.0)
+        self.labels.clear()
+        self.static.clear()
+
     def send(self, msg: Any, *, answered: bool = True, timeout: float = 5.0) -> PointCloud2 | None:
-        """Publish ``msg``; with ``answered``, spin until its labels arrive and return them."""
+        """Publish ``msg``; with ``answered``, spin until its labels and static features arrive
+        and return the labels."""
         stamp = decode.stamp_ns(msg.header)
         self.publisher.publish(msg)
         if not answered:
             return None
-        assert self.ros.spin_until(lambda: self.labels_for(stamp) is not None, timeout), (
-            f'no motion_labels for stamp {stamp}')
+        assert self.ros.spin_until(
+            lambda: self.labels_for(stamp) is not None
+            and any(decode.stamp_ns(m.header) == stamp for m in self.static), timeout), (
+            f'no motion_labels or static_features for stamp {stamp}')
         return self.labels_for(stamp)
 
     def labels_for(self, stamp: int) -> PointCloud2 | None:
