@@ -364,6 +364,16 @@ def test_truncated_ros1_bag(tmp_path: Path, capsys: pytest.CaptureFixture[str]) 
     assert_nothing_left(tmp_path, 'cut.bag')
 
 
+def test_a_ros2_bag_folder_named_dot_bag_is_explained(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    bag = tmp_path / 'pair.bag'
+    shutil.copytree(BAGS / '1R2RCR_g12_pair', bag)
+    line = run(capsys, str(bag), '-o', str(tmp_path / 'out'))
+    assert 'folder named *.bag' in line
+    assert_nothing_left(tmp_path, 'pair.bag')
+
+
 def test_unknown_topic_lists_the_bags_topics(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
@@ -666,3 +676,60 @@ def test_the_readme_examples_run(tmp_path: Path, monkeypatch: pytest.MonkeyPatch
         assert main(args) == 0, capsys.readouterr().err
     assert json.loads((tmp_path / 'labels_1R2RCR_g12.json').read_text())['counts']['frames'] == 24
     assert len(messages(tmp_path / 'labels_ros1', LABELS)) == 24
+
+
+def vins_fusion_bag(path: Path, frames: int = 3) -> list[tuple[int, np.ndarray, np.ndarray]]:
+    """1R2RCR_g12's first frames as camera 1 of a VINS-Fusion cloud, with 5 camera-0 points
+    interleaved; returns camera 1's (stamp, ids, uv)."""
+    cloud = 'sensor_msgs/msg/PointCloud'
+    types = TS.types
+    source = messages(BAGS / '1R2RCR_g12', FEATURES)[:frames]
+    out = []
+    with Writer(path, version=9, storage_plugin=StoragePlugin.MCAP) as writer:
+        connection = writer.add_connection(FEATURES, cloud, typestore=TS)
+        for t, msg in source:
+            ids, uv = decode_pointcloud(msg)
+            out.append((stamp_ns(msg.header), ids, uv))
+            other = np.arange(5)
+            camera = np.r_[np.ones(ids.size), np.zeros(5)]
+            order = np.argsort(np.r_[np.arange(ids.size) * 2.0, np.arange(5) * 2.0 + 1.5])
+            columns = [np.r_[ids, other], camera, np.r_[uv[:, 0], other * 10.0],
+                       np.r_[uv[:, 1], other * 10.0], np.zeros(ids.size + 5),
+                       np.zeros(ids.size + 5)]
+            fused = types[cloud](
+                header=msg.header,
+                points=[types['geometry_msgs/msg/Point32'](x=float(k), y=0.0, z=1.0)
+                        for k in range(ids.size + 5)],
+                # Unnamed channels by index, as VINS-Fusion: id, camera, u, v, vx, vy.
+                channels=[types['sensor_msgs/msg/ChannelFloat32'](
+                    name='', values=np.asarray(c[order], np.float32)) for c in columns],
+            )
+            writer.write(connection, t, bytes(TS.serialize_cdr(fused, cloud)))
+    return out
+
+
+def test_vins_fusion_layout_segments_one_camera_and_passes_the_others_through(
+    tmp_path: Path
+) -> None:
+    bag, out = tmp_path / 'fusion', tmp_path / 'out'
+    camera1 = vins_fusion_bag(bag)
+    assert main([str(bag), '-o', str(out), '--layout', 'vins_fusion', '--camera-id', '1',
+                 *DETERMINISTIC]) == 0
+    segmenter = OnlineSegmenter(*build_configs({'budget_ms': 0.0}))
+    for (stamp, ids, uv), (_, labels_msg), (_, static), (_, msg_in) in zip(
+            camera1, messages(out, LABELS), messages(out, STATIC), messages(bag, FEATURES),
+            strict=True):
+        label_ids, labels = decode_labels(labels_msg)
+        np.testing.assert_array_equal(label_ids, ids)  # camera 1 only, in input order
+        np.testing.assert_array_equal(labels, segmenter.process(stamp, ids, uv).labels)
+        # static_features: the same cloud, camera 0's points untouched, camera 1's background.
+        camera = np.asarray(static.channels[1].values)
+        assert np.count_nonzero(camera == 0) == 5
+        counts = Counter(label for label in labels.tolist() if label >= 0)
+        expected = set()
+        if counts:
+            most = max(counts.values())
+            background = min(label for label, n in counts.items() if n == most)
+            expected = set(ids[labels == background].tolist())
+        assert set(np.asarray(static.channels[0].values)[camera == 1].astype(int)) == expected
+        assert len(static.channels) == len(msg_in.channels) == 6
