@@ -181,7 +181,7 @@ class FeatureStream:
         self.ros1 = not reader.is2
 
     def __iter__(self) -> Iterator[FeatureMessage | CopiedMessage]:
-        reader, topic = self._reader, self.topic
+        reader = self._reader
         features = {id(c) for c in self._connections}
         iterator = reader.messages(connections=self._connections + self._copies)
         index = 0

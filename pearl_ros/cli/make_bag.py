@@ -25,6 +25,7 @@ Examples::
 from __future__ import annotations
 
 import argparse
+import itertools
 import math
 import shutil
 import sys
@@ -128,8 +129,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     except SystemExit as done:  # --help
         return int(done.code or 0)
     try:
-        common = dict(msg_format=args.msg_format, storage=args.storage, topic=args.topic,
-                      truth_topic=args.truth_topic, force=args.force)
+        common = {'msg_format': args.msg_format, 'storage': args.storage, 'topic': args.topic,
+                  'truth_topic': args.truth_topic, 'force': args.force}
         if args.source == SYNTHETIC:
             summary = make_synthetic_bag(
                 args.out_bag,
@@ -274,7 +275,7 @@ def select_frames(frames: Sequence[int], num_frames: int) -> list[int]:
         if not 0 <= resolved < num_frames:
             raise InputError(f'frame {index} is outside the {num_frames} frames of the sequence')
         kept.append(resolved)
-    if not kept or any(b <= a for a, b in zip(kept, kept[1:])):
+    if not kept or any(b <= a for a, b in itertools.pairwise(kept)):
         raise InputError(f'frames must be increasing and distinct, got {list(frames)}')
     return kept
 

@@ -101,6 +101,7 @@ class ReplayStats:
     frames: list[dict[str, Any]] = field(default_factory=list)
     skipped: list[dict[str, Any]] = field(default_factory=list)
     copied: dict[str, int] = field(default_factory=dict)
+    not_copied: int = 0
     messages: int = 0
     wall_s: float = 0.0
 
@@ -115,6 +116,7 @@ class ReplayStats:
             'skip_reasons': dict(sorted(reasons.items())),
             'resets': int(sum(row['reset'] for row in self.frames)),
             'copied': dict(self.copied),
+            'not_copied': self.not_copied,
         }
 
     def summary(self) -> dict[str, Any]:
@@ -237,6 +239,7 @@ def replay(
             for item in stream:
                 if isinstance(item, CopiedMessage):
                     if item.cdr is None:
+                        stats.not_copied += 1
                         warn(f'{item.topic} message at {item.log_time_ns} ns not copied: '
                              f'{item.error}')
                         continue

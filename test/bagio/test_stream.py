@@ -97,15 +97,18 @@ def test_stream_from_a_ros1_bag_copies_truth_as_ros2_cdr() -> None:
 
 
 def test_stream_refuses_missing_bags_topics_and_types(tmp_path: Path) -> None:
-    with pytest.raises(BagError, match='bag not found'):
-        with open_feature_stream(tmp_path / 'none'):
-            pass
-    with pytest.raises(BagError, match="no topic '/x'"):
-        with open_feature_stream(BAGS / '1R2RCR_g12_pair', topic='/x'):
-            pass
-    with pytest.raises(InputError, match='layout'):
-        with open_feature_stream(BAGS / '1R2RCR_g12_pair', layout='stereo'):
-            pass
+    with pytest.raises(BagError, match='bag not found'), open_feature_stream(tmp_path / 'none'):
+        pass
+    with (
+        pytest.raises(BagError, match="no topic '/x'"),
+        open_feature_stream(BAGS / '1R2RCR_g12_pair', topic='/x'),
+    ):
+        pass
+    with (
+        pytest.raises(InputError, match='layout'),
+        open_feature_stream(BAGS / '1R2RCR_g12_pair', layout='stereo'),
+    ):
+        pass
 
 
 def pointcloud(ids: list[float], uv: list[tuple[float, float]]) -> object:
@@ -160,18 +163,19 @@ def test_output_bag_failure_leaves_nothing_and_keeps_an_old_bag(
     tmp_path: Path, storage: str
 ) -> None:
     target = tmp_path / 'out'
-    with pytest.raises(RuntimeError):
-        with open_output_bag(target, storage=storage) as out:
-            write_two(out)
-            raise RuntimeError('boom')
+    with pytest.raises(RuntimeError), open_output_bag(target, storage=storage) as out:
+        write_two(out)
+        raise RuntimeError('boom')
     assert list(tmp_path.iterdir()) == []
     with open_output_bag(target, storage=storage) as out:
         write_two(out)
     before = {p.name: p.read_bytes() for p in target.iterdir()}
-    with pytest.raises(KeyboardInterrupt):
-        with open_output_bag(target, storage=storage, replace=True) as out:
-            write_two(out)
-            raise KeyboardInterrupt
+    with (
+        pytest.raises(KeyboardInterrupt),
+        open_output_bag(target, storage=storage, replace=True) as out,
+    ):
+        write_two(out)
+        raise KeyboardInterrupt
     assert {p.name: p.read_bytes() for p in target.iterdir()} == before
     assert sorted(p.name for p in tmp_path.iterdir()) == ['out']
 
@@ -180,26 +184,30 @@ def test_output_bag_replaces_only_a_bag_and_only_when_asked(tmp_path: Path) -> N
     target = tmp_path / 'out'
     with open_output_bag(target) as out:
         write_two(out)
-    with pytest.raises(BagError, match='exists'):
-        with open_output_bag(target):
-            pass
+    with pytest.raises(BagError, match='exists'), open_output_bag(target):
+        pass
     with open_output_bag(target, replace=True) as out:
         out.add_topic('/b', 'std_msgs/msg/String')
     assert raw_messages(target, '/a') == []
     folder = tmp_path / 'folder'
     folder.mkdir()
-    with pytest.raises(BagError, match='not a bag'):
-        with open_output_bag(folder, replace=True):
-            pass
-    with pytest.raises(InputError, match='must not end in .bag'):
-        with open_output_bag(tmp_path / 'x.bag'):
-            pass
-    with pytest.raises(BagError, match='output folder does not exist'):
-        with open_output_bag(tmp_path / 'no' / 'out'):
-            pass
-    with pytest.raises(InputError, match='storage'):
-        with open_output_bag(tmp_path / 'y', storage='rosbag1'):
-            pass
+    with pytest.raises(BagError, match='not a bag'), open_output_bag(folder, replace=True):
+        pass
+    with (
+        pytest.raises(InputError, match='must not end in .bag'),
+        open_output_bag(tmp_path / 'x.bag'),
+    ):
+        pass
+    with (
+        pytest.raises(BagError, match='output folder does not exist'),
+        open_output_bag(tmp_path / 'no' / 'out'),
+    ):
+        pass
+    with (
+        pytest.raises(InputError, match='storage'),
+        open_output_bag(tmp_path / 'y', storage='rosbag1'),
+    ):
+        pass
     with open_output_bag(tmp_path / 'z') as out:
         with pytest.raises(InputError, match='not a ROS 2 Kilted message type'):
             out.add_topic('/c', 'my_msgs/msg/Thing')

@@ -431,8 +431,8 @@ def test_bad_parameters_and_options(
 @pytest.mark.parametrize('text,expected', [
     ('label_cost: [1, 2\n', 'not valid YAML'),
     ('- label_cost\n- 3\n', 'must hold a mapping'),
-    ('other_node:\n  ros__parameters:\n    window: 3\n'
-     'another:\n  ros__parameters:\n    window: 4\n', 'none for pearl_node'),
+    (('other_node:\n  ros__parameters:\n    window: 3\n'
+      'another:\n  ros__parameters:\n    window: 4\n'), 'none for pearl_node'),
     ('pearl_node:\n  ros__parameters:\n    lable_cost: 3.0\n', "unknown parameter 'lable_cost'"),
     ('label_cost: expensive\n', 'label_cost must be of type float'),
     ('warm_start: 3\n', 'warm_start must be of type bool'),
