@@ -23,9 +23,11 @@ def delaunay_edges(points: np.ndarray) -> np.ndarray:
         order = np.lexsort(points.T[::-1])
         return np.sort(np.stack([order[:-1], order[1:]], axis=1), axis=1).astype(np.int64)
     pairs = np.concatenate([simplices[:, [0, 1]], simplices[:, [1, 2]], simplices[:, [0, 2]]])
-    pairs = np.sort(pairs, axis=1)
+    pairs = np.sort(pairs, axis=1).astype(np.int64)
     # Coincident points are dropped by qhull: they are joined to nothing, which is harmless.
-    return np.unique(pairs, axis=0).astype(np.int64)
+    # Each pair as one integer i * n + j: a 1-D unique is several times faster than axis=0.
+    codes = np.unique(pairs[:, 0] * n + pairs[:, 1])
+    return np.stack([codes // n, codes % n], axis=1)
 
 
 def nearest_neighbours(points: np.ndarray, k: int) -> np.ndarray:

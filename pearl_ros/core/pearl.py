@@ -331,7 +331,7 @@ def _setting(tracks: np.ndarray, config: PearlConfig, rng: np.random.Generator) 
     anchor = np.asarray(tracks, dtype=np.float64)[-1]
     edges = delaunay_edges(anchor)
     neighbours = nearest_neighbours(anchor, _NEIGHBOURS)
-    scale = config.noise or max(local_scale(model, data, neighbours, rng), config.min_noise)
+    scale = config.noise or _estimate_scale(model, data, neighbours, config, rng)
     dof = model.residual_dof(data)
     floor = _FLOOR * scale
     # A point is an outlier when its residual to a model at the fresh noise level exceeds
@@ -342,7 +342,28 @@ def _setting(tracks: np.ndarray, config: PearlConfig, rng: np.random.Generator) 
         model=model, data=data, edges=edges,
         weights=np.full(edges.shape[0], config.smoothness),
         neighbours=neighbours, scale=scale, floor=floor, dof=dof,
-        outlier_cost=outlier_cost, label_cost=config.label_cost)
+        outlier_cost=outlier_cost,
+        label_cost=config.label_cost * model.label_cost_weight(data))
+
+
+def noise_scale(tracks: np.ndarray, config: PearlConfig | None = None,
+                rng: np.random.Generator | int | None = None) -> float:
+    """The noise scale (px) :func:`fit` estimates when ``config.noise`` is 0.
+
+    Callers that fit similar data again and again (the online segmenter) estimate it once and
+    pass it on as ``config.noise``, saving the setup cost of every fit.
+    """
+    config = config or PearlConfig()
+    model = get_model(config.model)
+    data = model.data(tracks)
+    anchor = np.asarray(tracks, dtype=np.float64)[-1]
+    neighbours = nearest_neighbours(anchor, _NEIGHBOURS)
+    return _estimate_scale(model, data, neighbours, config, np.random.default_rng(rng))
+
+
+def _estimate_scale(model: MotionModel, data: np.ndarray, neighbours: np.ndarray,
+                    config: PearlConfig, rng: np.random.Generator) -> float:
+    return max(local_scale(model, data, neighbours, rng), config.min_noise)
 
 
 def _propose(setting: _Setting, labels: np.ndarray, params: np.ndarray, config: PearlConfig,
@@ -426,3 +447,4 @@ def _compress(labels: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     mapping = np.zeros(int(labels.max()) + 1, dtype=np.int64)
     mapping[used] = np.arange(1, used.size + 1)
     return mapping[labels], used - 1
+

@@ -83,8 +83,8 @@ def synthetic_stream(
     centres = np.array([[320.0, 240.0, 0.0]] + [
         [120.0 + 400.0 * (k % 2), 120.0 + 240.0 * ((k // 2) % 2), 0.0] for k in range(bodies - 1)])
     extents = np.array([[300.0, 220.0, 100.0]] + [[60.0, 60.0, 60.0]] * (bodies - 1))
-    turns = [_rotation(rng, 0.01)] + [_rotation(rng, 0.03) for _ in range(bodies - 1)]
-    shifts = [rng.normal(0, 1.0, 3)] + [rng.normal(0, 4.0, 3) for _ in range(bodies - 1)]
+    turns = [_rotation(rng, 0.01)] + [_rotation(rng, 0.08) for _ in range(bodies - 1)]
+    shifts = [rng.normal(0, 1.0, 3)] + [rng.normal(0, 6.0, 3) for _ in range(bodies - 1)]
     # Pose (R_k, t_k) of body k: a point at X0 in the body's first pose is at R_k X0 + t_k.
     rots = [np.eye(3) for _ in range(bodies)]
     trans = [np.zeros(3) for _ in range(bodies)]

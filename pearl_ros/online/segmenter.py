@@ -27,11 +27,12 @@ from scipy.spatial import cKDTree
 from pearl_ros.core.config import PearlConfig
 from pearl_ros.core.errors import InputError
 from pearl_ros.core.models import get_model
-from pearl_ros.core.pearl import fit
+from pearl_ros.core.pearl import fit, noise_scale
 from pearl_ros.online.config import OnlineConfig
 from pearl_ros.online.window import SlidingWindow
 
 UNLABELLED = -1
+_RESCALE = 15  # frames between estimates of the noise scale
 _TWO_VIEW = ('fundamental', 'homography')
 
 
@@ -83,6 +84,8 @@ class OnlineSegmenter:
         self._window = SlidingWindow(self.online.window)
         self._label_of_track: dict[int, int] = {}  # track key -> motion number, last frame
         self._next_label = 0
+        self._last_span = 0
+        self._scales: dict[str, tuple[float, int]] = {}  # model -> (px, fitted frames since)
 
     @property
     def frames_in_window(self) -> int:
@@ -92,6 +95,8 @@ class OnlineSegmenter:
         """Empty the window. Motion numbers already used are never given out again."""
         self._window.clear()
         self._label_of_track = {}
+        self._scales = {}
+        self._last_span = 0
 
     def reconfigure(self, config: PearlConfig | None = None,
                     online: OnlineConfig | None = None) -> None:
@@ -148,7 +153,8 @@ class OnlineSegmenter:
                 tracks = tracks[[0, -1]]
             prior = np.array([self._label_of_track.get(k, UNLABELLED) for k in keys[fitted]],
                              dtype=np.int64)
-            warm = self.online.warm_start and bool(np.any(prior != UNLABELLED))
+            warm = (self.online.warm_start and bool(np.any(prior != UNLABELLED))
+                    and span == self._last_span)
             segments = self._fit(tracks, model_name, prior, warm, start)
             motion_labels[fitted] = self._identify(segments, prior)
             young = np.setdiff1d(np.arange(keys.size), fitted)
@@ -157,6 +163,7 @@ class OnlineSegmenter:
         else:
             span, model_name = 0, ''
         labels[seen] = motion_labels
+        self._last_span = span
         self._label_of_track = {int(k): int(v) for k, v in zip(keys, motion_labels)
                                 if v != UNLABELLED}
         motions = np.unique(motion_labels[motion_labels != UNLABELLED]).size
@@ -172,6 +179,8 @@ class OnlineSegmenter:
              start: float) -> np.ndarray:
         """Segment ``tracks``; returns 0..K-1 per track, -1 outliers."""
         config = dataclasses.replace(self.config, model=model_name)
+        if not config.noise:
+            config = dataclasses.replace(config, noise=self._scale(tracks, config))
         init = None
         if warm:
             config = dataclasses.replace(config, num_proposals=self.online.warm_proposals,
@@ -181,6 +190,15 @@ class OnlineSegmenter:
         budget = self.online.budget_ms
         deadline = start + budget / 1e3 if budget > 0 else None
         return fit(tracks, config, self._rng, init=init, deadline=deadline).labels
+
+    def _scale(self, tracks: np.ndarray, config: PearlConfig) -> float:
+        """The noise scale of ``config.model``, estimated again every ``_RESCALE`` frames: it
+        changes slowly, and estimating it costs more than a warm-started fit."""
+        scale, age = self._scales.get(config.model, (0.0, _RESCALE))
+        if age >= _RESCALE:
+            scale, age = noise_scale(tracks, config, self._rng), 0
+        self._scales[config.model] = (scale, age + 1)
+        return scale
 
     def _identify(self, segments: np.ndarray, prior: np.ndarray) -> np.ndarray:
         """Motion numbers for ``segments`` (0..K-1, -1), matched to the ``prior`` numbers."""

@@ -258,6 +258,10 @@ class TwoViewModel:
         samples = check_samples(samples, data.shape[0], self.min_samples)
         return self._linear(data[samples], minimal=True)
 
+    def label_cost_weight(self, data: np.ndarray) -> float:
+        """1: two views are one fixed amount of evidence."""
+        return 1.0
+
     def residual_dof(self, data: np.ndarray) -> float:
         """1: the Sampson distance is a first-order distance to a codimension-1 variety."""
         return 1.0

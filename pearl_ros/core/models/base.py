@@ -55,6 +55,10 @@ class MotionModel(Protocol):
         """Distances ``(K, N)`` in pixels of every point to each of ``params`` ``(K, ...)``."""
         ...
 
+    def label_cost_weight(self, data: np.ndarray) -> float:
+        """The factor on the configured label cost for models fitted to ``data``."""
+        ...
+
     def residual_dof(self, data: np.ndarray) -> float:
         """E[r^2] / sigma^2 for an inlier under isotropic pixel noise sigma per coordinate.
 
