@@ -4,7 +4,13 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: venv test demo bench clean
+.PHONY: venv test demo bench bench-node clean
+
+# The demo's bag, and extra pearl_node arguments (e.g. DEMO_ARGS='-p label_cost:=300.0').
+DEMO_BAG ?= bags/1R2RCR_g12
+DEMO_ARGS ?=
+# ROS 2 discovery stays on this machine for the demo and the node benchmark.
+ROS_ENV := ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST
 
 venv: $(STAMP)
 
@@ -19,11 +25,23 @@ $(STAMP): requirements.txt requirements-dev.txt setup.py setup.cfg
 test: venv
 	$(BIN)/python -m pytest -q test
 
+# pearl_node in the background, the bag's feature messages played into it live by pearl_play
+# (labels and accuracy printed per frame), then Ctrl-C to the node.
 demo: venv
-	$(BIN)/pearl_segment_bag bags/*/
+	@$(ROS_ENV) $(BIN)/pearl_node --ros-args -r features:=/feature_tracker/feature \
+	    --params-file config/pearl.yaml $(DEMO_ARGS) & node=$$!; \
+	$(ROS_ENV) $(BIN)/pearl_play $(DEMO_BAG) --timeout 20; status=$$?; \
+	kill -INT $$node; wait $$node; \
+	exit $$status
+	@# HOOK(pearl_replay): write the output bag of the same bag with the same parameters here,
+	@# e.g. $(BIN)/pearl_replay $(DEMO_BAG) --output <out bag> --params config/pearl.yaml --force
 
 bench: venv
 	$(BIN)/pearl_bench hopkins155 ../shared/data/hopkins155 --frames all
+
+# End-to-end latency of pearl_node at 30 Hz with 300 features (in-process).
+bench-node: venv
+	$(ROS_ENV) $(BIN)/pearl_node_bench --features 300 --rate 30 --frames 300
 
 clean:
 	rm -rf $(VENV) build *.egg-info

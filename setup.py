@@ -14,6 +14,7 @@ setup(
         ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
         ('share/' + package_name, ['package.xml']),
         ('share/' + package_name + '/config', glob('config/*.yaml')),
+        ('share/' + package_name + '/launch', glob('launch/*.launch.py')),
     ],
     python_requires='>=3.10',
     install_requires=['setuptools', 'numpy', 'scipy', 'PyMaxflow', 'rosbags'],
@@ -28,6 +29,10 @@ setup(
             'pearl_make_bag = pearl_ros.cli.make_bag:main',
             'pearl_bench = pearl_ros.cli.bench:main',
             'pearl_segment_bag = pearl_ros.cli.segment_bag:main',
+            'pearl_node = pearl_ros.ros.node:main',
+            'pearl_node_bench = pearl_ros.ros.bench:main',
+            'pearl_play = pearl_ros.ros.play:main',
+            'pearl_replay = pearl_ros.cli.replay:main',
         ],
     },
 )

@@ -2,6 +2,14 @@
 
 Reads ROS 2 bag folders (mcap or sqlite3), bare ``.mcap`` / ``.db3`` files and ROS 1 ``.bag`` files
 (VINS-Mono users often have those). Message decoding lives in :mod:`pearl_ros.bagio.decode`.
+
+Two ways in:
+
+- :func:`read_feature_frames`, :func:`read_ground_truth`, :func:`read_ground_truth_frames`:
+  strict, a malformed message raises :class:`~pearl_ros.core.errors.BagError`;
+- :func:`open_feature_stream`: what a replay needs, every message in recording order with its
+  decoded frame *or* the one-line reason it cannot be read, so that one bad message is counted
+  and skipped instead of ending the run; other topics come along as ROS 2 CDR bytes.
 """
 
 from __future__ import annotations
@@ -20,7 +28,7 @@ from rosbags.rosbag2 import ReaderError as Ros2ReaderError
 from rosbags.serde import SerdeError
 from rosbags.typesys import Stores, TypesysError, get_typestore
 
-from pearl_ros.bagio import decode
+from pearl_ros.bagio import decode, encode
 from pearl_ros.core.errors import BagError, InputError
 
 TYPESTORE = get_typestore(Stores.ROS2_KILTED)
@@ -87,6 +95,201 @@ class FeatureFrame:
         object.__setattr__(self, 'uv', uv)
 
 
+@dataclass(frozen=True)
+class FeatureMessage:
+    """One message of the feature topic, as :func:`open_feature_stream` yields it.
+
+    Attributes
+    ----------
+    index : int
+        Position on the feature topic, from 0, in recording order.
+    log_time_ns : int
+        Time the bag recorded the message, int nanoseconds.
+    msgtype : str
+        ``'sensor_msgs/msg/PointCloud'`` or ``'sensor_msgs/msg/PointCloud2'``.
+    msg : object or None
+        The deserialised message (a rosbags dataclass); None if it could not be deserialised.
+    frame : FeatureFrame or None
+        Its features; None when the message is malformed.
+    error : str or None
+        One-line reason why ``frame`` is None.
+    """
+
+    index: int
+    log_time_ns: int
+    msgtype: str
+    msg: Any
+    frame: FeatureFrame | None
+    error: str | None = None
+
+
+@dataclass(frozen=True)
+class CopiedMessage:
+    """A message of another topic, passed through as ROS 2 CDR.
+
+    Attributes
+    ----------
+    topic, msgtype : str
+    log_time_ns : int
+    cdr : bytes or None
+        ROS 2 CDR serialisation (re-serialised from ROS 1 if the bag is a ROS 1 bag); None if the
+        message could not be read, and then ``error`` says why.
+    error : str or None
+    """
+
+    topic: str
+    msgtype: str
+    log_time_ns: int
+    cdr: bytes | None
+    error: str | None = None
+
+
+class FeatureStream:
+    """An open bag's feature topic (and topics to copy), iterated in recording order.
+
+    Made by :func:`open_feature_stream`; iterating yields :class:`FeatureMessage` for the feature
+    topic and :class:`CopiedMessage` for the copied topics, merged by log time.
+
+    Attributes
+    ----------
+    path : Path
+    topic : str
+        The feature topic.
+    msgtypes : tuple of str
+        Message type(s) recorded on it.
+    count : int
+        Messages on the feature topic.
+    copied : dict of str -> str
+        Topics to copy that the bag has, with their message type.
+    ros1 : bool
+        The bag is a ROS 1 bag.
+    """
+
+    def __init__(self, reader: AnyReader, path: Path, topic: str, layout: str, camera_id: int,
+                 copy_topics: tuple[str, ...]) -> None:
+        self._reader = reader
+        self.path = path
+        self.topic = topic
+        self._layout = layout
+        self._camera_id = camera_id
+        self._connections = _connections(reader, path, topic, FEATURE_TYPES)
+        self.msgtypes = tuple(sorted({c.msgtype for c in self._connections}))
+        self.count = sum(int(c.msgcount) for c in self._connections)
+        wanted = set(copy_topics) - {topic}
+        self._copies = [c for c in reader.connections if c.topic in wanted]
+        self.copied = {name: kind for name, kind in _topic_types(reader).items() if name in wanted}
+        self.ros1 = not reader.is2
+
+    def __iter__(self) -> Iterator[FeatureMessage | CopiedMessage]:
+        reader = self._reader
+        features = {id(c) for c in self._connections}
+        iterator = reader.messages(connections=self._connections + self._copies)
+        index = 0
+        while True:
+            try:
+                item = next(iterator, None)
+            except _ROSBAGS_ERRORS as err:  # storage damage: the rest of the bag is unreadable
+                raise BagError(f'cannot read bag {self.path}: {_one_line(err)}') from err
+            if item is None:
+                return
+            connection, log_time, raw = item
+            if id(connection) in features:
+                yield self._feature(index, int(log_time), connection.msgtype, raw)
+                index += 1
+            else:
+                yield self._copy(connection, int(log_time), raw)
+
+    def _feature(self, index: int, log_time: int, msgtype: str, raw: Any) -> FeatureMessage:
+        try:
+            msg = self._reader.deserialize(raw, msgtype)
+        except _ROSBAGS_ERRORS as err:
+            reason = f'cannot deserialise {msgtype}: {_one_line(err)}'
+            return FeatureMessage(index, log_time, msgtype, None, None, reason)
+        try:
+            frame = decode_feature_message(msg, msgtype, self._layout, self._camera_id)
+        except InputError as err:
+            return FeatureMessage(index, log_time, msgtype, msg, None, _one_line(err))
+        return FeatureMessage(index, log_time, msgtype, msg, frame)
+
+    def _copy(self, connection: Any, log_time: int, raw: Any) -> CopiedMessage:
+        topic, msgtype = connection.topic, connection.msgtype
+        if not self.ros1:
+            return CopiedMessage(topic, msgtype, log_time, bytes(raw))
+        try:
+            # The serialiser reads fields by name: a ROS 1 Header's seq is simply left behind.
+            msg = self._reader.deserialize(raw, msgtype)
+            cdr = bytes(TYPESTORE.serialize_cdr(msg, msgtype))
+        except _ROSBAGS_ERRORS as err:
+            return CopiedMessage(topic, msgtype, log_time, None,
+                                 f'cannot convert {msgtype} to ROS 2: {_one_line(err)}')
+        return CopiedMessage(topic, msgtype, log_time, cdr)
+
+
+@contextmanager
+def open_feature_stream(
+    path: str | Path,
+    topic: str = '/feature_tracker/feature',
+    layout: str = 'auto',
+    camera_id: int = 0,
+    copy_topics: tuple[str, ...] = (),
+) -> Iterator[FeatureStream]:
+    """Open a bag for a replay: its feature topic, plus other topics to pass through.
+
+    Parameters
+    ----------
+    path : str or Path
+        ROS 2 bag folder, ``.mcap`` / ``.db3`` file, or ROS 1 ``.bag`` file.
+    topic : str
+        The feature topic (PointCloud or PointCloud2, detected per connection).
+    layout, camera_id
+        As :func:`read_feature_frames`.
+    copy_topics : tuple of str
+        Topics to yield as :class:`CopiedMessage`; those the bag lacks are ignored
+        (:attr:`FeatureStream.copied` lists the ones found).
+
+    Raises
+    ------
+    BagError
+        Missing or corrupt bag, unknown feature topic, wrong message type: on opening. Storage
+        damage met while iterating raises too; a malformed *message* does not, it comes out as a
+        :class:`FeatureMessage` with ``error`` set.
+    InputError
+        Bad ``layout`` or ``camera_id``.
+    """
+    layout = decode.check_layout(layout)
+    camera_id = decode.check_camera_id(camera_id)
+    with _open(path) as reader:
+        yield FeatureStream(reader, Path(path), topic, layout, camera_id, tuple(copy_topics))
+
+
+def decode_feature_message(
+    msg: Any, msgtype: str, layout: str = 'auto', camera_id: int = 0
+) -> FeatureFrame:
+    """The :class:`FeatureFrame` of one feature message, refusing what the node refuses.
+
+    Beyond :mod:`~pearl_ros.bagio.decode`'s checks, as ``pearl_node`` does: PointCloud ids above
+    ``2**24`` (float32 channels hold integers exactly only up to there, so two tracks may already
+    share one id), ids the ``motion_labels`` uint32 field cannot hold, and an empty cloud (nothing
+    to label).
+
+    Raises
+    ------
+    InputError
+        With a one-line reason.
+    """
+    if msgtype == POINTCLOUD2:
+        ids, uv = decode.decode_pointcloud2(msg)
+    elif msgtype == POINTCLOUD:
+        ids, uv = decode.decode_pointcloud(msg, layout, camera_id)
+        encode.check_float32_ids(ids)
+    else:
+        raise InputError(f'{msgtype} is not a feature message type {FEATURE_TYPES}')
+    encode.check_label_ids(ids)
+    if ids.size == 0:
+        raise InputError('empty cloud: no features')
+    return FeatureFrame(decode.stamp_ns(msg.header), ids, uv)
+
+
 def topics(path: str | Path) -> dict[str, str]:
     """Topic -> message type (``'sensor_msgs/msg/PointCloud'``...) of the bag at ``path``.
 
@@ -134,7 +337,9 @@ def read_ground_truth(path: str | Path, topic: str = '/ground_truth/labels') -> 
     """Feature id -> ground-truth label, merged over every message of ``topic``.
 
     Each message is a ``sensor_msgs/msg/PointCloud2`` with fields ``id`` (uint32) and ``label``
-    (int32), usually one per frame with that frame's features.
+    (int32), usually one per frame with that frame's features. Where the truth changes over time
+    (an object starts moving, a tracker reuses an id), read it per frame with
+    :func:`read_ground_truth_frames`.
 
     Raises
     ------
@@ -156,6 +361,34 @@ def read_ground_truth(path: str | Path, topic: str = '/ground_truth/labels') -> 
                         f'on {topic}'
                     )
     return truth
+
+
+def read_ground_truth_frames(
+    path: str | Path, topic: str = '/ground_truth/labels'
+) -> list[tuple[int, np.ndarray, np.ndarray]]:
+    """Ground truth frame by frame: ``(stamp_ns, ids, labels)`` per message, in recording order.
+
+    Returns
+    -------
+    list of (int, (M,) int64, (M,) int64)
+        Header stamp (int nanoseconds; a frame's truth carries its feature message's stamp), and
+        that frame's feature ids and labels.
+
+    Raises
+    ------
+    BagError
+        As :func:`read_feature_frames`.
+    """
+    out = []
+    with _open(path) as reader:
+        connections = _connections(reader, path, topic, TRUTH_TYPES)
+        for index, (_, msg) in enumerate(_messages(reader, path, connections)):
+            try:
+                ids, labels = decode.decode_labels(msg)
+            except InputError as err:
+                raise BagError(f'{path}: message {index} on {topic}: {err}') from err
+            out.append((decode.stamp_ns(msg.header), ids, labels))
+    return out
 
 
 def _iter_frames(

@@ -12,6 +12,12 @@ Message layouts written:
 
 Ground truth goes to its own topic as ``sensor_msgs/msg/PointCloud2`` with fields ``id`` (uint32)
 and ``label`` (int32), one message per frame at the frame's stamp.
+
+:func:`open_output_bag` is the general writer the replay uses (any messages, atomic, optional
+replacement of an existing bag); :func:`write_ros1_bag` turns a ROS 2 bag into a ROS 1 ``.bag``.
+
+Every writer here builds its output in a hidden folder beside the target and renames it into place
+when complete: a failure or an interrupt never leaves a half-written bag under the target's name.
 """
 
 from __future__ import annotations
@@ -20,12 +26,15 @@ import heapq
 import shutil
 import tempfile
 from collections.abc import Callable, Iterable, Iterator, Mapping
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+from rosbags.convert import ConverterError, convert
 from rosbags.rosbag2 import StoragePlugin, Writer, WriterError
 from rosbags.serde import SerdeError
+from rosbags.typesys import Stores, get_typestore
 
 from pearl_ros.bagio import decode
 from pearl_ros.bagio.reader import POINTCLOUD, POINTCLOUD2, TYPESTORE, FeatureFrame
@@ -178,6 +187,199 @@ def _write(
                 writer.write(connection_, stamp, bytes(raw))
     except (WriterError, SerdeError, OSError) as err:
         raise BagError(f'cannot write bag {path.name}: {" ".join(str(err).split())}') from err
+
+
+class OutputBag:
+    """A ROS 2 bag being written by :func:`open_output_bag`.
+
+    Attributes
+    ----------
+    path : Path
+        Where the bag will be once complete (it is written elsewhere until then).
+    counts : dict of str -> int
+        Messages written per topic.
+    """
+
+    def __init__(self, writer: Writer, path: Path) -> None:
+        self._writer = writer
+        self._connections: dict[str, Any] = {}
+        self.path = path
+        self.counts: dict[str, int] = {}
+
+    def add_topic(self, topic: str, msgtype: str) -> None:
+        """Declare ``topic`` with ``msgtype`` (a type of the Kilted typestore); idempotent."""
+        if topic in self._connections:
+            if self._connections[topic].msgtype != msgtype:
+                raise InputError(
+                    f'topic {topic} is {self._connections[topic].msgtype}, not {msgtype}'
+                )
+            return
+        if msgtype not in TYPESTORE.types:
+            raise InputError(f'cannot write {msgtype}: not a ROS 2 Kilted message type')
+        try:
+            self._connections[topic] = self._writer.add_connection(
+                topic, msgtype, typestore=TYPESTORE
+            )
+        except WriterError as err:
+            raise BagError(f'cannot add topic {topic}: {_one_line(err)}') from err
+        self.counts[topic] = 0
+
+    def write(self, topic: str, log_time_ns: int, msg: Any) -> None:
+        """Serialise ``msg`` (a message of ``topic``'s type) and write it at ``log_time_ns``."""
+        connection = self._connection(topic)
+        try:
+            raw = bytes(TYPESTORE.serialize_cdr(msg, connection.msgtype))
+        except (SerdeError, AttributeError, TypeError, ValueError, KeyError) as err:
+            raise BagError(f'cannot serialise {connection.msgtype}: {_one_line(err)}') from err
+        self.write_cdr(topic, log_time_ns, raw)
+
+    def write_cdr(self, topic: str, log_time_ns: int, cdr: bytes) -> None:
+        """Write an already serialised (ROS 2 CDR) message of ``topic`` at ``log_time_ns``."""
+        connection = self._connection(topic)
+        try:
+            self._writer.write(connection, int(log_time_ns), cdr)
+        except (WriterError, OSError) as err:
+            raise BagError(f'cannot write bag {self.path}: {_one_line(err)}') from err
+        self.counts[topic] += 1
+
+    def _connection(self, topic: str) -> Any:
+        try:
+            return self._connections[topic]
+        except KeyError:
+            raise InputError(f'topic {topic} was not added to the output bag') from None
+
+
+@contextmanager
+def open_output_bag(
+    path: str | Path, *, storage: str = 'mcap', replace: bool = False
+) -> Iterator[OutputBag]:
+    """A new ROS 2 bag at ``path``, in place only once the ``with`` block completes.
+
+    The bag is written in a hidden ``.<name>.*.partial`` folder beside ``path``. When the block
+    ends normally it is renamed to ``path`` (an existing bag there is first moved into that
+    folder, then deleted); when it raises (or is interrupted) the folder is deleted and ``path``
+    is left as it was.
+
+    Parameters
+    ----------
+    path : str or Path
+        Bag folder to create; must not end in ``.bag`` (rosbags would read it back as ROS 1).
+    storage : {'mcap', 'sqlite3'}
+    replace : bool
+        Replace an existing bag at ``path``. Only a bag is ever replaced: a folder with a
+        ``metadata.yaml`` or a ``.mcap`` / ``.db3`` file.
+
+    Raises
+    ------
+    BagError
+        ``path`` exists (and ``replace`` is false, or it is not a bag), its folder does not exist,
+        or writing fails.
+    InputError
+        Bad ``storage`` or a ``.bag`` name.
+    """
+    if storage not in STORAGES:
+        raise InputError(f'storage must be one of {tuple(STORAGES)}, got {storage!r}')
+    path = Path(path)
+    if path.suffix == '.bag':
+        raise InputError(
+            f'output bag {path} must not end in .bag: rosbags reads *.bag as a ROS 1 bag file'
+        )
+    exists = path.exists() or path.is_symlink()
+    if exists and not replace:
+        raise BagError(f'{path} exists already')
+    if exists and not is_bag(path):
+        raise BagError(f'refusing to replace {path}: it is not a bag (no metadata.yaml)')
+    parent = path.parent
+    if not parent.is_dir():
+        raise BagError(f'output folder does not exist: {parent}')
+    try:
+        staging = Path(tempfile.mkdtemp(prefix=f'.{path.name}.', suffix='.partial', dir=parent))
+    except OSError as err:
+        raise BagError(f'cannot write in {parent}: {err.strerror or err}') from err
+    try:
+        staged = staging / path.name  # so the storage file inside is <name>.mcap / <name>.db3
+        writer = Writer(staged, version=9, storage_plugin=STORAGES[storage])
+        try:
+            writer.open()
+        except (WriterError, OSError) as err:
+            raise BagError(f'cannot write bag {path}: {_one_line(err)}') from err
+        try:
+            yield OutputBag(writer, path)
+        except BaseException:
+            # The caller's failure is the one to report; the bag is thrown away anyway.
+            try:
+                writer.close()
+            except (WriterError, OSError):
+                pass
+            raise
+        try:
+            writer.close()
+        except (WriterError, OSError) as err:
+            raise BagError(f'cannot finish bag {path}: {_one_line(err)}') from err
+        _move_into_place(staged, path, staging)
+    finally:
+        shutil.rmtree(staging, ignore_errors=True)
+
+
+def write_ros1_bag(source: str | Path, path: str | Path) -> None:
+    """Convert the ROS 2 bag ``source`` into a ROS 1 bag file ``path`` (``*.bag``).
+
+    Message definitions are the ROS 1 Noetic ones (``std_msgs/Header`` gains ``seq``), as a ROS 1
+    recorder writes them; stamps and fields are kept. Atomic, as every writer here.
+
+    Raises
+    ------
+    BagError
+        ``path`` exists, its folder does not, or the conversion fails.
+    InputError
+        ``path`` does not end in ``.bag``.
+    """
+    source, path = Path(source), Path(path)
+    if path.suffix != '.bag':
+        raise InputError(f'a ROS 1 bag file must end in .bag, got {path}')
+    if path.exists() or path.is_symlink():
+        raise BagError(f'{path} exists already; delete it or choose another path')
+    if not path.parent.is_dir():
+        raise BagError(f'output folder does not exist: {path.parent}')
+    staging = Path(tempfile.mkdtemp(prefix=f'.{path.name}.', suffix='.partial', dir=path.parent))
+    try:
+        staged = staging / path.name
+        try:
+            convert(
+                [source], staged, 'sqlite3', 9, None, 'file',
+                TYPESTORE, get_typestore(Stores.ROS1_NOETIC), [], [], [], [],
+            )
+        except (ConverterError, OSError) as err:
+            raise BagError(f'cannot convert {source} to ROS 1: {_one_line(err)}') from err
+        _move_into_place(staged, path, staging)
+    finally:
+        shutil.rmtree(staging, ignore_errors=True)
+
+
+def is_bag(path: Path) -> bool:
+    """A rosbag2 folder, or a single storage file: what a replacement may delete."""
+    if path.is_dir() and not path.is_symlink():
+        return (path / 'metadata.yaml').is_file()
+    return path.suffix in ('.mcap', '.db3')
+
+
+def _move_into_place(staged: Path, path: Path, staging: Path) -> None:
+    """Rename ``staged`` to ``path``; an existing ``path`` goes to ``staging``, deleted with it."""
+    old = staging / '.replaced'
+    moved = False
+    try:
+        if path.exists() or path.is_symlink():
+            path.rename(old)
+            moved = True
+        staged.rename(path)
+    except OSError as err:
+        if moved and not path.exists():
+            old.rename(path)  # put the old bag back
+        raise BagError(f'cannot move the new bag to {path}: {err.strerror or err}') from err
+
+
+def _one_line(err: BaseException) -> str:
+    return ' '.join(str(err).split()) or type(err).__name__
 
 
 def _feature_messages(

@@ -1,18 +1,31 @@
-"""``pearl_make_bag``: turn a Hopkins-format ``*_truth.mat`` file into a ROS 2 bag of features.
+"""``pearl_make_bag``: write a bag of tracked features with ground truth.
 
-One message per frame at ``--rate`` Hz, stamps from a fixed epoch (output is deterministic),
-feature ids ``0..P-1`` in the column order of the file, pixels from ``y``, normalised coordinates
-from ``x`` (or ``K^-1 y``), and one ground-truth message per frame with labels ``0..k-1`` (the
-file's groups ``s`` renumbered in increasing order).
+Two sources:
 
-Example::
+- a Hopkins-format ``*_truth.mat`` file: one message per frame at ``--rate`` Hz, stamps from a
+  fixed epoch (output is deterministic), feature ids ``0..P-1`` in the column order of the file,
+  pixels from ``y``, normalised coordinates from ``x`` (or ``K^-1 y``), and one ground-truth
+  message per frame with labels ``0..k-1`` (the file's groups ``s`` renumbered in increasing
+  order). ``--frames 0,-1`` keeps only some frames (a two-view pair), with their stamps;
+- the word ``synthetic``: :func:`pearl_ros.datasets.synthetic.synthetic_stream` (rigid bodies
+  under an affine camera, features dying and being born, ids reused), at 30 Hz from the same
+  epoch, with each frame's own ground truth (an object that has not started, or has stopped,
+  moving is labelled background, 0).
+
+An output path ending in ``.bag`` is written as a ROS 1 bag file (Noetic message definitions);
+any other path is a ROS 2 bag folder.
+
+Examples::
 
     pearl_make_bag ../shared/data/hopkins155/cars2/cars2_truth.mat bags/cars2
+    pearl_make_bag synthetic bags/synthetic --num-features 300 --num-frames 90 \\
+        --object 0.2:30 --object 0.15:0:60
 """
 
 from __future__ import annotations
 
 import argparse
+import itertools
 import math
 import shutil
 import sys
@@ -24,11 +37,17 @@ import numpy as np
 import scipy.io
 
 from pearl_ros.bagio.reader import FeatureFrame
-from pearl_ros.bagio.writer import FORMATS, STORAGES, write_feature_bag
+from pearl_ros.bagio.writer import FORMATS, STORAGES, is_bag, write_feature_bag, write_ros1_bag
 from pearl_ros.core.errors import InputError, PearlError
 from pearl_ros.datasets.hopkins import load_mat
+from pearl_ros.datasets.synthetic import BodySpec, synthetic_stream
 
 EPOCH_NS = 1_700_000_000 * 1_000_000_000  # stamp of the first frame, int ns (2023-11-14)
+SYNTHETIC = 'synthetic'
+
+# Normalised coordinates of synthetic streams: a nominal pinhole camera for a 640 x 480 image.
+SYNTHETIC_FOCAL = 500.0  # px
+SYNTHETIC_CENTRE = (320.0, 240.0)  # px
 
 
 class _UsageError(Exception):
@@ -43,12 +62,32 @@ class _Parser(argparse.ArgumentParser):
 def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(
         prog='pearl_make_bag',
-        description='Convert a Hopkins-format *_truth.mat file into a ROS 2 bag of tracked '
-        'features with ground-truth labels.',
+        description='Write a bag of tracked features with ground-truth labels, from a '
+        'Hopkins-format *_truth.mat file or a synthetic stream.',
     )
-    parser.add_argument('mat_file', type=Path, help='Hopkins-format <name>_truth.mat file')
-    parser.add_argument('out_bag', type=Path, help='bag folder to create (name it without .bag)')
-    parser.add_argument('--rate', type=float, default=30.0, help='frame rate, Hz (default 30)')
+    parser.add_argument('source', metavar='SOURCE', help='Hopkins-format <name>_truth.mat file, '
+                        f'or {SYNTHETIC!r} for a synthetic stream')
+    parser.add_argument('out_bag', type=Path, help='ROS 2 bag folder to create (name it without '
+                        '.bag); a path ending in .bag is written as a ROS 1 bag file')
+    parser.add_argument('--rate', type=float, default=30.0,
+                        help='frame rate of a .mat file, Hz (default 30)')
+    parser.add_argument('--frames', dest='frame_list', default=None, metavar='I,J,...',
+                        help='.mat file: keep only these frames (0-based, negative from the end, '
+                        'e.g. 0,-1 for a two-view pair); their stamps are kept')
+    synthetic = parser.add_argument_group('synthetic stream')
+    synthetic.add_argument('--num-features', type=int, default=300,
+                           help='features per frame (default 300)')
+    synthetic.add_argument('--num-frames', type=int, default=90, help='frames (default 90)')
+    synthetic.add_argument('--object', dest='objects', action='append', default=None,
+                           metavar='SHARE[:START[:STOP]]',
+                           help='a moving object: share of the features, first frame it moves '
+                           'on its own and frame it stops (repeat for more objects; default '
+                           '0.2:30 and 0.15:0:60, one that starts and one that stops)')
+    synthetic.add_argument('--death-rate', type=float, default=0.02,
+                           help='probability that a feature is lost in a frame (default 0.02)')
+    synthetic.add_argument('--noise', type=float, default=0.5,
+                           help='px, Gaussian tracking noise (default 0.5)')
+    synthetic.add_argument('--seed', type=int, default=0, help='random seed (default 0)')
     parser.add_argument(
         '--format',
         dest='msg_format',
@@ -90,16 +129,27 @@ def main(argv: Sequence[str] | None = None) -> int:
     except SystemExit as done:  # --help
         return int(done.code or 0)
     try:
-        summary = make_bag(
-            args.mat_file,
-            args.out_bag,
-            rate=args.rate,
-            msg_format=args.msg_format,
-            storage=args.storage,
-            topic=args.topic,
-            truth_topic=args.truth_topic,
-            force=args.force,
-        )
+        common = {'msg_format': args.msg_format, 'storage': args.storage, 'topic': args.topic,
+                  'truth_topic': args.truth_topic, 'force': args.force}
+        if args.source == SYNTHETIC:
+            summary = make_synthetic_bag(
+                args.out_bag,
+                num_features=args.num_features,
+                num_frames=args.num_frames,
+                objects=parse_objects(args.objects or ['0.2:30', '0.15:0:60']),
+                death_rate=args.death_rate,
+                noise=args.noise,
+                seed=args.seed,
+                **common,
+            )
+        else:
+            summary = make_bag(
+                args.source,
+                args.out_bag,
+                rate=args.rate,
+                frames=parse_frames(args.frame_list) if args.frame_list is not None else None,
+                **common,
+            )
     except (PearlError, OSError) as err:
         print(f'error: {" ".join(str(err).split())}', file=sys.stderr)
         return 1
@@ -112,67 +162,183 @@ def make_bag(
     out_bag: str | Path,
     *,
     rate: float = 30.0,
+    frames: Sequence[int] | None = None,
     msg_format: str = 'pointcloud',
     storage: str = 'mcap',
     topic: str = '/feature_tracker/feature',
     truth_topic: str = '/ground_truth/labels',
     force: bool = False,
 ) -> str:
-    """Write the bag; returns a one-line summary. Raises InputError / BagError on bad input."""
+    """Write the bag of a Hopkins-format file; returns a one-line summary.
+
+    ``frames`` (0-based, negative from the end) keeps only those frames, with the stamps they
+    have in the whole sequence. Raises InputError / BagError on bad input.
+    """
     if not (math.isfinite(rate) and rate > 0):
         raise InputError(f'rate must be a finite frequency > 0 Hz, got {rate}')
     mat_file, out_bag = Path(mat_file), Path(out_bag)
     if not mat_file.is_file():
         raise InputError(f'no such .mat file: {mat_file}')
+    replace = _check_output(out_bag, force)
+
+    sequence = load_mat(mat_file)
+    normalized = normaliser(scipy.io.loadmat(str(mat_file)), mat_file)
+    num_frames, num_points, _ = sequence.tracks.shape
+    kept = select_frames(frames, num_frames) if frames is not None else list(range(num_frames))
+    stamps = [EPOCH_NS + round(index * 1e9 / rate) for index in kept]
+    ids = np.arange(num_points, dtype=np.int64)
+
+    def feature_frames() -> Iterator[FeatureFrame]:
+        for stamp, index in zip(stamps, kept, strict=True):
+            yield FeatureFrame(stamp, ids, sequence.tracks[index])
+
+    truth = ((stamp, ids, sequence.labels) for stamp in stamps)
+    _write_atomically(out_bag, replace, lambda target: write_feature_bag(
+        target, feature_frames(), truth, topic=topic, truth_topic=truth_topic,
+        msg_format=msg_format, storage=storage, normalized=normalized))
+    which = '' if frames is None else f' (frames {",".join(map(str, kept))} of {num_frames})'
+    return (
+        f'wrote {out_bag}: {len(kept)} frames{which} x {num_points} points, '
+        f'{sequence.num_motions} motions, {FORMATS[msg_format]} on {topic}, '
+        f'labels on {truth_topic}, {_container(out_bag, storage)}'
+    )
+
+
+def make_synthetic_bag(
+    out_bag: str | Path,
+    *,
+    num_features: int = 300,
+    num_frames: int = 90,
+    objects: Sequence[BodySpec] = (BodySpec(0.2, start=30), BodySpec(0.15, stop=60)),
+    death_rate: float = 0.02,
+    noise: float = 0.5,
+    seed: int = 0,
+    msg_format: str = 'pointcloud',
+    storage: str = 'mcap',
+    topic: str = '/feature_tracker/feature',
+    truth_topic: str = '/ground_truth/labels',
+    force: bool = False,
+) -> str:
+    """Write a bag of :func:`~pearl_ros.datasets.synthetic.synthetic_stream`; a summary line.
+
+    Frames are 30 Hz apart from :data:`EPOCH_NS`. Ground truth is published per frame with
+    that frame's stamp: labels change over time (an object not moving on its own is background,
+    0) and ids are reused. Normalised coordinates come from a nominal camera
+    (:data:`SYNTHETIC_FOCAL`, :data:`SYNTHETIC_CENTRE`).
+    """
+    out_bag = Path(out_bag)
+    for name, value, low in (('num_features', num_features, 1), ('num_frames', num_frames, 1)):
+        if isinstance(value, bool) or not isinstance(value, int) or value < low:
+            raise InputError(f'{name} must be an integer >= {low}, got {value!r}')
+    if not (math.isfinite(death_rate) and 0 <= death_rate < 1):
+        raise InputError(f'death_rate must be in [0, 1), got {death_rate}')
+    if not (math.isfinite(noise) and noise >= 0):
+        raise InputError(f'noise must be a finite number of pixels >= 0, got {noise}')
+    if sum(o.share for o in objects) >= 1:
+        raise InputError('objects must leave a positive share of features to the background')
+    replace = _check_output(out_bag, force)
+    stream = list(synthetic_stream(num_features, num_frames, tuple(objects), death_rate, noise,
+                                   seed, start_ns=EPOCH_NS))
+    frames = [FeatureFrame(f.stamp_ns, f.ids, f.uv) for f in stream]
+    truth = [(f.stamp_ns, f.ids, f.truth) for f in stream]
+    centre = np.asarray(SYNTHETIC_CENTRE)
+
+    def normalized(uv: np.ndarray) -> np.ndarray:
+        """(N, 2) pixels -> (N, 2) normalised coordinates of the nominal camera."""
+        xy: np.ndarray = (uv - centre) / SYNTHETIC_FOCAL
+        return xy
+
+    _write_atomically(out_bag, replace, lambda target: write_feature_bag(
+        target, frames, truth, topic=topic, truth_topic=truth_topic, msg_format=msg_format,
+        storage=storage, normalized=normalized))
+    ids = set().union(*(f.ids.tolist() for f in stream))
+    return (
+        f'wrote {out_bag}: synthetic, {num_frames} frames x {num_features} features '
+        f'({len(ids)} ids), {len(objects)} objects, {FORMATS[msg_format]} on {topic}, '
+        f'labels on {truth_topic} per frame, {_container(out_bag, storage)}'
+    )
+
+
+def parse_frames(text: str) -> list[int]:
+    """``'0,-1'`` -> ``[0, -1]``."""
+    try:
+        return [int(item) for item in text.split(',')]
+    except ValueError as err:
+        raise InputError(f'--frames must be integers separated by commas, got {text!r}') from err
+
+
+def select_frames(frames: Sequence[int], num_frames: int) -> list[int]:
+    """Frame indices (negative from the end) resolved, checked in range and increasing."""
+    kept = []
+    for index in frames:
+        resolved = index + num_frames if index < 0 else index
+        if not 0 <= resolved < num_frames:
+            raise InputError(f'frame {index} is outside the {num_frames} frames of the sequence')
+        kept.append(resolved)
+    if not kept or any(b <= a for a, b in itertools.pairwise(kept)):
+        raise InputError(f'frames must be increasing and distinct, got {list(frames)}')
+    return kept
+
+
+def parse_objects(items: Sequence[str]) -> list[BodySpec]:
+    """``'SHARE[:START[:STOP]]'`` strings -> BodySpec (``'0.15:0:60'``; ``'0.2:30'``)."""
+    specs = []
+    for item in items:
+        parts = item.split(':')
+        try:
+            if not 1 <= len(parts) <= 3:
+                raise ValueError(item)
+            share = float(parts[0])
+            start = int(parts[1]) if len(parts) > 1 and parts[1] else 0
+            stop = int(parts[2]) if len(parts) > 2 and parts[2] else None
+        except ValueError as err:
+            raise InputError(f'--object must be SHARE[:START[:STOP]], got {item!r}') from err
+        if not (math.isfinite(share) and 0 < share < 1) or start < 0 or (
+                stop is not None and stop <= start):
+            raise InputError(f'--object {item!r}: need 0 < share < 1, start >= 0, stop > start')
+        specs.append(BodySpec(share, start, stop))
+    return specs
+
+
+def _check_output(out_bag: Path, force: bool) -> bool:
+    """Whether ``out_bag`` exists and may be replaced; InputError if it may not."""
     replace = out_bag.exists() or out_bag.is_symlink()
     if replace and not force:
         raise InputError(f'{out_bag} exists; pass --force to replace it')
     if replace and not _is_bag(out_bag):
         raise InputError(f'refusing to replace {out_bag}: it is not a bag (no metadata.yaml)')
+    if not out_bag.parent.is_dir():
+        raise InputError(f'output folder does not exist: {out_bag.parent}')
+    return replace
 
-    sequence = load_mat(mat_file)
-    normalized = normaliser(scipy.io.loadmat(str(mat_file)), mat_file)
-    num_frames, num_points, _ = sequence.tracks.shape
-    stamps = [EPOCH_NS + round(index * 1e9 / rate) for index in range(num_frames)]
-    ids = np.arange(num_points, dtype=np.int64)
 
-    def frames() -> Iterator[FeatureFrame]:
-        for stamp, uv in zip(stamps, sequence.tracks, strict=True):
-            yield FeatureFrame(stamp, ids, uv)
+def _write_atomically(out_bag: Path, replace: bool, write: Callable[[Path], None]) -> None:
+    """Run ``write(path)`` into a staging folder, convert to ROS 1 for ``*.bag``, move in place.
 
-    truth = ((stamp, ids, sequence.labels) for stamp in stamps)
-
-    def write(target: Path) -> None:
-        write_feature_bag(
-            target,
-            frames(),
-            truth,
-            topic=topic,
-            truth_topic=truth_topic,
-            msg_format=msg_format,
-            storage=storage,
-            normalized=normalized,
-        )
-
-    if not replace:
-        write(out_bag)
-    else:
-        # Write the new bag aside first: a failure leaves the old one in place.
-        staging = Path(tempfile.mkdtemp(prefix=f'.{out_bag.name}.', dir=out_bag.parent))
-        try:
-            write(staging / out_bag.name)
+    A failure leaves ``out_bag`` as it was (an old bag stays when replacing).
+    """
+    staging = Path(tempfile.mkdtemp(prefix=f'.{out_bag.name}.', suffix='.partial',
+                                    dir=out_bag.parent))
+    try:
+        if out_bag.suffix == '.bag':
+            write(staging / 'ros2')
+            staged = staging / out_bag.name
+            write_ros1_bag(staging / 'ros2', staged)
+        else:
+            staged = staging / out_bag.name
+            write(staged)
+        if replace:
             if out_bag.is_dir() and not out_bag.is_symlink():
                 shutil.rmtree(out_bag)
             else:
                 out_bag.unlink()
-            (staging / out_bag.name).rename(out_bag)
-        finally:
-            shutil.rmtree(staging, ignore_errors=True)
-    return (
-        f'wrote {out_bag}: {num_frames} frames x {num_points} points, '
-        f'{sequence.num_motions} motions, {FORMATS[msg_format]} on {topic}, '
-        f'labels on {truth_topic}, {storage}'
-    )
+        staged.rename(out_bag)
+    finally:
+        shutil.rmtree(staging, ignore_errors=True)
+
+
+def _container(out_bag: Path, storage: str) -> str:
+    return 'ROS 1 bag' if out_bag.suffix == '.bag' else storage
 
 
 def normaliser(
@@ -217,10 +383,8 @@ def normaliser(
 
 
 def _is_bag(path: Path) -> bool:
-    """A rosbag2 folder, or a single storage file: what --force may delete."""
-    if path.is_dir():
-        return (path / 'metadata.yaml').is_file()
-    return path.suffix in ('.mcap', '.db3')
+    """A rosbag2 folder, a storage file or a ROS 1 bag file: what --force may delete."""
+    return is_bag(path) or (path.is_file() and path.suffix == '.bag')
 
 
 if __name__ == '__main__':

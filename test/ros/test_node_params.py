@@ -1,0 +1,233 @@
+"""Parameters (declared, set at runtime through the services, defaults file), ~/reset and
+/diagnostics of the node, seen from another node as a user's tools would see them."""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+import yaml
+from diagnostic_msgs.msg import DiagnosticStatus
+from rcl_interfaces.msg import ParameterType
+from rclpy.exceptions import ParameterException
+from rclpy.parameter import Parameter, parameter_value_to_python
+from rclpy.parameter_client import AsyncParameterClient
+from ros_harness import BAG, REPO, Probe, Ros, vins_cloud
+from std_srvs.srv import Trigger
+
+from pearl_ros.bagio import decode
+from pearl_ros.bagio.reader import read_feature_frames
+from pearl_ros.core.config import PearlConfig, parameter_specs
+from pearl_ros.core.errors import InputError
+from pearl_ros.online.config import OnlineConfig
+from pearl_ros.ros import params
+from pearl_ros.ros.node import PearlNode
+
+FRAMES = list(read_feature_frames(BAG))
+TYPES = {bool: ParameterType.PARAMETER_BOOL, int: ParameterType.PARAMETER_INTEGER,
+         float: ParameterType.PARAMETER_DOUBLE, str: ParameterType.PARAMETER_STRING}
+
+
+def frame_msg(k: int) -> Any:
+    return vins_cloud(FRAMES[k].stamp_ns, FRAMES[k].ids, FRAMES[k].uv)
+
+
+def _client(ros: Ros, probe: Probe) -> AsyncParameterClient:
+    client = AsyncParameterClient(probe.node, f'{ros.ns}/pearl_node')
+    assert client.wait_for_services(timeout_sec=10.0)
+    return client
+
+
+def _call(ros: Ros, future: Any) -> Any:
+    assert ros.spin_until(future.done, 5.0)
+    return future.result()
+
+
+def _start(ros: Ros, **overrides: Any) -> tuple[PearlNode, Probe]:
+    node = ros.pearl(**overrides)
+    probe = ros.probe()
+    probe.wait_for(node)
+    return node, probe
+
+
+def test_every_config_field_is_a_parameter_with_its_description_and_range(ros: Ros) -> None:
+    _, probe = _start(ros)
+    specs = parameter_specs(PearlConfig) + parameter_specs(OnlineConfig)
+    names = [item.name for item in specs] + ['msg_type', 'qos', 'max_features']
+    client = _client(ros, probe)
+    described = _call(ros, client.describe_parameters(names)).descriptors
+    values = _call(ros, client.get_parameters(names)).values
+    assert len(described) == len(values) == len(specs) + 3
+    # The dataclass specs are the oracle.
+    for item, desc, value in zip(specs, described[:-3], values[:-3], strict=True):
+        assert desc.name == item.name
+        assert desc.description == item.doc
+        assert desc.type == TYPES[item.type] == value.type
+        assert parameter_value_to_python(value) == item.default
+        if item.type is float:
+            assert (desc.floating_point_range[0].from_value,
+                    desc.floating_point_range[0].to_value) == (item.low, item.high)
+        elif item.type is int:
+            assert (desc.integer_range[0].from_value,
+                    desc.integer_range[0].to_value) == (item.low, item.high)
+        if item.choices:
+            assert all(choice in desc.additional_constraints for choice in item.choices)
+        assert not desc.read_only
+    msg_type, qos, max_features = described[-3:]
+    assert msg_type.read_only and qos.read_only and not max_features.read_only
+    assert 'PointCloud2' in msg_type.additional_constraints
+
+
+@pytest.mark.parametrize(('name', 'value', 'reason'), [
+    ('label_cost', -5.0, 'label_cost out of range'),  # rclpy checks the declared range
+    ('window', 1, 'window out of range'),
+    ('model', 'bogus', "model must be one of ('affine', 'fundamental', 'homography')"),
+    ('two_view_model', 'affine', 'two_view_model must be one of'),  # build_configs checks
+    ('layout', 'diagonal', 'layout must be one of'),
+    ('msg_type', 'PointCloud2', 'read-only'),
+    ('warm_start', 'yes', 'type'),
+])
+def test_invalid_value_is_rejected_with_its_reason_and_nothing_changes(
+    ros: Ros, name: str, value: Any, reason: str
+) -> None:
+    _, probe = _start(ros)
+    client = _client(ros, probe)
+    before = _call(ros, client.get_parameters([name])).values[0]
+    result = _call(ros, client.set_parameters([Parameter(name, value=value)])).results[0]
+    assert not result.successful
+    assert reason in result.reason
+    assert _call(ros, client.get_parameters([name])).values[0] == before
+    probe.send(frame_msg(0))  # still segmenting
+
+
+def test_a_valid_change_applies_from_the_next_frame(ros: Ros) -> None:
+    _, probe = _start(ros)
+    client = _client(ros, probe)
+    for k in range(5):
+        probe.send(frame_msg(k))
+    probe.diagnostics_where(lambda v: v['frames in window'] == '5')
+    result = _call(ros, client.set_parameters([Parameter('window', value=3),
+                                               Parameter('max_features', value=30)])).results
+    assert all(r.successful for r in result), result
+    answer = probe.send(frame_msg(5))
+    values = probe.diagnostics_where(lambda v: v['messages processed'] == '6')
+    assert values['frames in window'] == '3'  # the window shrank to the newest frames
+    assert values['features segmented'] == '30'
+    labels = decode.decode_fields(answer, ('label',))['label']
+    assert 0 < np.count_nonzero(labels >= 0) <= 30
+
+
+def test_an_integer_for_a_float_parameter_is_taken_as_that_float(ros: Ros) -> None:
+    # `ros2 param set /pearl_node label_cost 500` sends an integer.
+    _, probe = _start(ros)
+    client = _client(ros, probe)
+    result = _call(ros, client.set_parameters([Parameter('label_cost', value=500)])).results[0]
+    assert result.successful, result.reason
+    value = _call(ros, client.get_parameters(['label_cost'])).values[0]
+    assert (value.type, value.double_value) == (ParameterType.PARAMETER_DOUBLE, 500.0)
+
+
+@pytest.mark.parametrize(('overrides', 'error'), [
+    ({'model': 'bogus'}, InputError),
+    ({'label_cost': -1.0}, ParameterException),
+    ({'qos': 'fast'}, InputError),
+])
+def test_a_bad_start_up_value_stops_the_node_with_its_reason(
+    ros: Ros, overrides: dict[str, Any], error: type
+) -> None:
+    name = next(iter(overrides))
+    with pytest.raises(error, match=name):
+        ros.pearl(**overrides)
+
+
+def test_reset_service_empties_the_window(ros: Ros) -> None:
+    _, probe = _start(ros, label_cost=300.0, budget_ms=0.0)
+    for k in range(4):
+        answer = probe.send(frame_msg(k))
+    assert (decode.decode_fields(answer, ('label',))['label'] >= 0).all()
+    client = probe.node.create_client(Trigger, f'{ros.ns}/pearl_node/reset')
+    assert client.wait_for_service(timeout_sec=10.0)
+    response = _call(ros, client.call_async(Trigger.Request()))
+    assert response.success
+    assert '4 frames' in response.message
+    answer = probe.send(frame_msg(4))
+    # One frame in the window: no motion can be fitted, every feature is undecided.
+    assert (decode.decode_fields(answer, ('label',))['label'] == -1).all()
+    values = probe.diagnostics_where(lambda v: v['messages processed'] == '5')
+    assert (values['frames in window'], values['reset requests']) == ('1', '1')
+    assert values['window resets (stamp went back)'] == '0'
+
+
+def test_diagnostics_report_rate_latency_motions_and_features(ros: Ros) -> None:
+    _, probe = _start(ros, label_cost=300.0, budget_ms=0.0)
+    answers = [probe.send(frame_msg(k)) for k in range(12)]
+    last = decode.decode_fields(answers[-1], ('label',))['label']
+    values = probe.diagnostics_where(lambda v: v['messages processed'] == '12')
+    assert values['motions'] == str(np.unique(last[last >= 0]).size) == '2'
+    assert values['features'] == values['features segmented'] == '153'
+    assert values['frames in window'] == '10'  # the default window
+    assert values['messages received'] == '12'
+    assert all(values[key] == '0' for key in (
+        'malformed messages', 'skipped messages', 'capped messages', 'internal errors',
+        'publishers of another type', 'publishers with incompatible QoS'))
+    busy = [s for s in probe.diagnostics if float(_value(s, 'input rate (Hz)')) > 0]
+    assert busy, 'no period saw input'
+    for status in busy:
+        assert status.level == DiagnosticStatus.OK, status.message
+        assert float(_value(status, 'latency max (ms)')) >= float(
+            _value(status, 'latency mean (ms)')) > 0
+    assert probe.diagnostics[0].name == 'pearl_node: motion segmentation'
+    # A period without input says so.
+    quiet = probe.diagnostics_where(lambda v: v['input rate (Hz)'] == '0.00')
+    assert quiet['_level'] == DiagnosticStatus.WARN and quiet['_message'] == 'no input'
+
+
+def _value(status: DiagnosticStatus, key: str) -> str:
+    return next(kv.value for kv in status.values if kv.key == key)
+
+
+def test_defaults_file_holds_every_declared_parameter_with_its_default() -> None:
+    path = REPO / 'config' / 'pearl.yaml'
+    loaded = yaml.safe_load(path.read_text())['/**']['ros__parameters']
+    expected = {item.name: item.default for item in params.ALL_SPECS}
+    assert loaded == expected
+    assert {k: type(v) for k, v in loaded.items()} == {k: type(v) for k, v in expected.items()}
+    assert path.read_text() == params.defaults_yaml(), (
+        'regenerate: python -m pearl_ros.ros.params > config/pearl.yaml')
+
+
+def test_node_started_with_the_defaults_file_has_the_default_configuration(ros: Ros) -> None:
+    path = REPO / 'config' / 'pearl.yaml'
+    node = ros.add(PearlNode(context=ros.context, namespace=ros.ns,
+                             cli_args=['--ros-args', '--params-file', str(path)]))
+    for item in params.ALL_SPECS:
+        value = node.get_parameter(item.name).value
+        assert value == item.default and type(value) is item.type, item.name
+
+
+def test_launch_file_remaps_features_to_the_tracker_and_loads_the_defaults() -> None:
+    # launch and launch_ros are not on PyPI: check what the file says, not what it does.
+    source = (REPO / 'launch' / 'pearl.launch.py').read_text()
+    tree = ast.parse(source)
+    strings = {n.value for n in ast.walk(tree) if isinstance(n, ast.Constant)}
+    assert {'pearl_ros', 'pearl_node', 'features', '/feature_tracker/feature',
+            'pearl.yaml', 'config'} <= strings
+    functions = {n.name for n in ast.walk(tree) if isinstance(n, ast.FunctionDef)}
+    assert 'generate_launch_description' in functions
+    calls = [n for n in ast.walk(tree) if isinstance(n, ast.Call)
+             and getattr(n.func, 'id', '') == 'Node']
+    assert len(calls) == 1
+    keywords = {k.arg for k in calls[0].keywords}
+    assert {'package', 'executable', 'parameters', 'remappings'} <= keywords
+    assert Path(REPO / 'setup.py').read_text().count("glob('launch/*.launch.py')") == 1
+
+
+def test_readme_parameter_table_lists_every_parameter_as_declared() -> None:
+    readme = (REPO / 'README.md').read_text()
+    assert params.markdown_table() in readme, (
+        'regenerate: python -m pearl_ros.ros.params --markdown')
+    for item in params.ALL_SPECS:
+        assert f'| `{item.name}` |' in readme
