@@ -440,7 +440,95 @@ def _build_parser() -> argparse.ArgumentParser:
         metavar='NAME=VALUE',
         help='override a PearlConfig field, for experiments (repeatable)',
     )
+    stream = commands.add_parser(
+        'stream',
+        help='stream Hopkins155 frame by frame through the online segmenter',
+        description='Feed every Hopkins155 sequence frame by frame through the online segmenter '
+        '(as the node does), warm-started and cold, and report accuracy, label changes and '
+        'per-frame latency.',
+    )
+    stream.add_argument('dataset_name', choices=('hopkins155',), metavar='hopkins155')
+    stream.add_argument('path', metavar='PATH', help='folder with one sub-folder per sequence')
+    stream.add_argument('--jobs', type=int, default=1, metavar='N', help='worker processes')
+    stream.add_argument('--only', nargs='+', metavar='NAME', help='stream these sequences only')
+    stream.add_argument('--no-cold', action='store_true', help='skip the cold-start run')
+    stream.add_argument('--set', action='append', default=[], metavar='NAME=VALUE',
+                        help='override a PearlConfig or OnlineConfig field (repeatable)')
+    latency = commands.add_parser(
+        'latency',
+        help='per-frame latency and peak memory on synthetic streams',
+        description='Synthetic streams of 100 / 300 / 1000 features with births and deaths, '
+        'windows of 5 / 10 / 20 frames: latency percentiles and peak memory per size.',
+    )
+    latency.add_argument('--frames', type=int, default=60, help='frames per stream')
+    latency.add_argument('--features', type=int, nargs='+', default=[100, 300, 1000])
+    latency.add_argument('--windows', type=int, nargs='+', default=[5, 10, 20])
+    latency.add_argument('--set', action='append', default=[], metavar='NAME=VALUE',
+                         help='override a PearlConfig or OnlineConfig field (repeatable)')
     return parser
+
+
+def _stream(args: argparse.Namespace) -> int:
+    from pearl_ros.cli.bench_stream import StreamTask, format_stream, stream_one
+    from pearl_ros.datasets.hopkins import sequence_names
+    from pearl_ros.online.config import build_configs, parse_assignments
+
+    if args.jobs < 1:
+        raise InputError(f'--jobs must be >= 1, got {args.jobs}')
+    overrides = parse_assignments(args.set)
+    config, online = build_configs(overrides)
+    root = Path(args.path)
+    names = list(dict.fromkeys(args.only)) if args.only else sequence_names(root)
+    if not names:
+        raise InputError(f'no Hopkins155 sequences (*/*_truth.mat) in {root}')
+    runs = [('warm start', online)]
+    if not args.no_cold:
+        runs.append(('cold start', dataclasses.replace(online, warm_start=False)))
+    for label, settings in runs:
+        tasks = [StreamTask(str(root), name, config, settings) for name in names]
+        rows = []
+        for done, row in enumerate(_parallel(stream_one, tasks, args.jobs), start=1):
+            rows.append(row)
+            sys.stderr.write(f'\r{label}: {done}/{len(tasks)} {row.name[:30]:<30}')
+        sys.stderr.write('\n')
+        title = (f'Online PEaRL on Hopkins155 ({root}), {label}, window {settings.window}, '
+                 f'budget {settings.budget_ms:g} ms')
+        if overrides:
+            title += ', ' + ', '.join(f'{k}={v}' for k, v in overrides.items())
+        print(format_stream(rows, title))
+        print()
+    return 0
+
+
+def _latency(args: argparse.Namespace) -> int:
+    from pearl_ros.cli.bench_stream import format_latency, latency_one
+    from pearl_ros.online.config import build_configs, parse_assignments
+
+    config, online = build_configs(parse_assignments(args.set))
+    rows = []
+    for features in args.features:
+        for window in args.windows:
+            if features < 10 or window < 2 or args.frames <= window:
+                raise InputError('need features >= 10, windows >= 2 and frames > window')
+            sys.stderr.write(f'\rlatency: {features} features, W={window}   ')
+            rows.append(latency_one(features, window, args.frames, config, online))
+    sys.stderr.write('\n')
+    print(format_latency(rows, f'Online PEaRL latency on synthetic streams ({args.frames} '
+                               f'frames, births and deaths, budget {online.budget_ms:g} ms)'))
+    return 0
+
+
+def _parallel(function: Any, tasks: Sequence[Any], jobs: int) -> Iterator[Any]:
+    """``function`` over ``tasks`` in order, in ``jobs`` spawned single-threaded workers."""
+    if jobs <= 1 or len(tasks) <= 1:
+        for task in tasks:
+            yield function(task)
+        return
+    context = multiprocessing.get_context('spawn')
+    with _single_threaded_children():
+        pool = context.Pool(processes=min(jobs, len(tasks)))
+    with pool:
+        yield from pool.imap(function, tasks, chunksize=1)
 
 
 def _hopkins155(args: argparse.Namespace) -> int:
@@ -525,7 +613,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of ``pearl_bench``; returns the exit code."""
     try:
         args = _build_parser().parse_args(argv)
-        return _hopkins155(args)
+        commands = {'hopkins155': _hopkins155, 'stream': _stream, 'latency': _latency}
+        return commands[args.dataset](args)
     except PearlError as err:
         print(f'error: {err}', file=sys.stderr)
         return 1
