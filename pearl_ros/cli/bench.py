@@ -260,31 +260,14 @@ def parse_overrides(items: Sequence[str]) -> dict[str, Any]:
     InputError
         On a malformed item, an unknown field name or a value of the wrong type.
     """
-    hints = typing.get_type_hints(PearlConfig)
-    out: dict[str, Any] = {}
-    for item in items:
-        name, sep, text = item.partition('=')
-        name = name.strip()
-        if not sep or not name:
-            raise InputError(f'--set expects NAME=VALUE, got {item!r}')
-        if name not in hints:
-            known = ', '.join(PearlConfig.field_names())
-            raise InputError(f'unknown parameter {name!r} (known: {known})')
-        kind = hints[name]
-        try:
-            if kind is bool:
-                lowered = text.strip().lower()
-                if lowered not in ('true', 'false', '1', '0', 'yes', 'no'):
-                    raise ValueError(text)
-                value: Any = lowered in ('true', '1', 'yes')
-            elif kind in (int, float, str):
-                value = kind(text.strip()) if kind is not str else text
-            else:  # pragma: no cover - every PearlConfig field is a plain scalar today
-                raise InputError(f'parameter {name!r} of type {kind} cannot be set from the CLI')
-        except ValueError as err:
-            raise InputError(f'invalid value for {name}: {text!r} is not {kind.__name__}') from err
-        out[name] = value
-    return out
+    from pearl_ros.online.config import parse_assignments
+
+    values = parse_assignments(items)
+    unknown = [name for name in values if name not in PearlConfig.field_names()]
+    if unknown:
+        known = ', '.join(PearlConfig.field_names())
+        raise InputError(f'unknown parameter {unknown[0]!r} (known: {known})')
+    return values
 
 
 @dataclass(frozen=True)
@@ -362,15 +345,7 @@ def _single_threaded_children() -> Iterator[None]:
 
 def run(tasks: Sequence[_Task], jobs: int) -> Iterator[Row]:
     """Rows of ``tasks`` in order, from ``jobs`` worker processes (none if ``jobs`` is 1)."""
-    if jobs <= 1 or len(tasks) <= 1:
-        for task in tasks:
-            yield _run_one(task)
-        return
-    context = multiprocessing.get_context('spawn')
-    with _single_threaded_children():
-        pool = context.Pool(processes=min(jobs, len(tasks)))
-    with pool:
-        yield from pool.imap(_run_one, tasks, chunksize=1)
+    return _parallel(_run_one, tasks, jobs)
 
 
 class _Progress:

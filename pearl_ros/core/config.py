@@ -43,23 +43,27 @@ def parameter_specs(cls: type) -> tuple[ParameterSpec, ...]:
         for f in fields(cls))
 
 
+def check_value(item: ParameterSpec, value: Any) -> None:
+    """Raise InputError naming ``item`` if ``value`` is of the wrong type or out of range."""
+    # bool is an int subclass, and an int is an acceptable float: compare the kinds users see.
+    kind_ok = (isinstance(value, bool) if item.type is bool
+               else isinstance(value, (int, float)) and not isinstance(value, bool)
+               if item.type is float
+               else isinstance(value, item.type) and not isinstance(value, bool))
+    if not kind_ok:
+        raise InputError(f'{item.name} must be of type {item.type.__name__}, got {value!r}')
+    if item.choices is not None and value not in item.choices:
+        raise InputError(f'{item.name} must be one of {item.choices}, got {value!r}')
+    if item.low is not None and not value >= item.low:
+        raise InputError(f'{item.name} must be >= {item.low}, got {value!r}')
+    if item.high is not None and not value <= item.high:
+        raise InputError(f'{item.name} must be <= {item.high}, got {value!r}')
+
+
 def check_fields(config: Any) -> None:
     """Raise InputError naming the first field of ``config`` of the wrong type or out of range."""
     for item in parameter_specs(type(config)):
-        value = getattr(config, item.name)
-        # bool is an int subclass, and an int is an acceptable float: compare the kinds users see.
-        kind_ok = (isinstance(value, bool) if item.type is bool
-                   else isinstance(value, (int, float)) and not isinstance(value, bool)
-                   if item.type is float
-                   else isinstance(value, item.type) and not isinstance(value, bool))
-        if not kind_ok:
-            raise InputError(f'{item.name} must be of type {item.type.__name__}, got {value!r}')
-        if item.choices is not None and value not in item.choices:
-            raise InputError(f'{item.name} must be one of {item.choices}, got {value!r}')
-        if item.low is not None and not value >= item.low:
-            raise InputError(f'{item.name} must be >= {item.low}, got {value!r}')
-        if item.high is not None and not value <= item.high:
-            raise InputError(f'{item.name} must be <= {item.high}, got {value!r}')
+        check_value(item, getattr(config, item.name))
 
 
 @dataclass(frozen=True)

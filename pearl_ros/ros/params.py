@@ -22,7 +22,7 @@ from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescri
 from rclpy.node import Node
 
 from pearl_ros.bagio import decode
-from pearl_ros.core.config import ParameterSpec, PearlConfig, parameter_specs
+from pearl_ros.core.config import ParameterSpec, PearlConfig, check_value, parameter_specs
 from pearl_ros.core.errors import InputError
 from pearl_ros.online.config import OnlineConfig, build_configs
 
@@ -143,18 +143,7 @@ def check_node_values(items: Iterable[tuple[str, Any]]) -> None:
     """Raise InputError naming the first node parameter of the wrong type or out of range."""
     specs = {item.name: item for item in NODE_SPECS}
     for name, value in items:
-        item = specs[name]
-        kind_ok = (isinstance(value, (int, float)) and not isinstance(value, bool)
-                   if item.type is float
-                   else isinstance(value, item.type) and not isinstance(value, bool))
-        if not kind_ok:
-            raise InputError(f'{name} must be of type {item.type.__name__}, got {value!r}')
-        if item.choices is not None and value not in item.choices:
-            raise InputError(f'{name} must be one of {item.choices}, got {value!r}')
-        if item.low is not None and not value >= item.low:
-            raise InputError(f'{name} must be >= {item.low}, got {value!r}')
-        if item.high is not None and not value <= item.high:
-            raise InputError(f'{name} must be <= {item.high}, got {value!r}')
+        check_value(specs[name], value)
 
 
 def defaults_yaml() -> str:
