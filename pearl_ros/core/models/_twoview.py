@@ -258,6 +258,17 @@ class TwoViewModel:
         samples = check_samples(samples, data.shape[0], self.min_samples)
         return self._linear(data[samples], minimal=True)
 
+    def fit_groups(self, data: np.ndarray, groups: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The normalised DLT of each row of ``groups`` ``(K, m)``, m >= min_samples, batched:
+        the linear start of :meth:`refit` without its Levenberg-Marquardt refinement."""
+        data = check_data(data)
+        groups = np.asarray(groups)
+        if groups.ndim != 2 or groups.shape[1] < self.min_samples:
+            raise InputError(f'groups must have shape (K, m) with m >= {self.min_samples}, '
+                             f'got {groups.shape}')
+        check_inliers(groups.reshape(-1), data.shape[0])
+        return self._linear(data[groups], minimal=groups.shape[1] == self.min_samples)
+
     def label_cost_weight(self, data: np.ndarray) -> float:
         """1: two views are one fixed amount of evidence."""
         return 1.0

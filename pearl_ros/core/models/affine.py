@@ -16,6 +16,7 @@ from typing import ClassVar
 
 import numpy as np
 
+from pearl_ros.core.errors import InputError
 from pearl_ros.core.models.base import check_tracks
 
 # A sample whose 3 difference vectors have a singular value below this share of the largest
@@ -47,6 +48,20 @@ class AffineSubspace:
         ok = diag.min(axis=1) > _RANK_TOL * np.maximum(diag.max(axis=1), 1e-12)
         # The origin of the minimal subspace is the sample mean: its residuals are symmetric.
         return np.concatenate([pts.mean(axis=1)[:, :, None], basis], axis=2), ok
+
+    def fit_groups(self, data: np.ndarray, groups: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Principal subspace of each row of ``groups`` ``(K, m)``, m >= 4, batched: what
+        :meth:`refit` finds for each group."""
+        groups = np.asarray(groups)
+        if groups.ndim != 2 or groups.shape[1] < self.min_samples:
+            raise InputError(f'groups must have shape (K, m) with m >= {self.min_samples}, '
+                             f'got {groups.shape}')
+        pts = data[groups]  # (K, m, D)
+        mean = pts.mean(axis=1)
+        _, s, vt = np.linalg.svd(pts - mean[:, None, :], full_matrices=False)
+        ok = s[:, self.dim - 1] > _RANK_TOL * np.maximum(s[:, 0], 1e-12)
+        basis = np.transpose(vt[:, : self.dim, :], (0, 2, 1))
+        return np.concatenate([mean[:, :, None], basis], axis=2), ok
 
     def refit(self, data: np.ndarray, inliers: np.ndarray, params: np.ndarray) -> np.ndarray | None:
         """Least-squares subspace of the inliers (principal components): optimal for sum r^2."""

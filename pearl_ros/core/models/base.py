@@ -44,6 +44,14 @@ class MotionModel(Protocol):
         """
         ...
 
+    def fit_groups(self, data: np.ndarray, groups: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Linear least-squares fit of one hypothesis per row of ``groups`` ``(K, m)`` int,
+        m >= min_samples, all at once (no iterative refinement): cheap approximate fits of many
+        small point sets. Returns ``params`` ``(K, ...)`` and ``ok`` ``(K,)`` as
+        :meth:`fit_minimal` does.
+        """
+        ...
+
     def refit(self, data: np.ndarray, inliers: np.ndarray, params: np.ndarray) -> np.ndarray | None:
         """Re-estimate one hypothesis from its ``inliers`` (int indices), starting at ``params``.
 

@@ -332,3 +332,11 @@ def test_refit_returns_none_for_a_planar_scene(model, scene):
 def test_refit_rejects_malformed_inliers_naming_them(model, scene, inliers):
     with pytest.raises(InputError, match='inliers'):
         model.refit(scene(n=20).data, inliers, np.eye(3))
+
+
+def test_fit_groups_recovers_the_true_matrix_from_groups_of_exact_points(model, scene, align):
+    truth = scene(n=60, seed=4)
+    params, ok = model.fit_groups(truth.data, np.arange(60).reshape(5, 12))
+    assert ok.all()
+    for F in params:
+        np.testing.assert_allclose(align(F, truth.F), truth.F, atol=1e-7)
