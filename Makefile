@@ -9,6 +9,8 @@ STAMP := $(VENV)/.installed
 # The demo's bag, and extra pearl_node arguments (e.g. DEMO_ARGS='-p label_cost:=300.0').
 DEMO_BAG ?= bags/1R2RCR_g12
 DEMO_ARGS ?=
+# Where make demo writes the output bag (the same online code as the node, on the same bag).
+DEMO_OUT ?= build/demo_labels
 # ROS 2 discovery stays on this machine for the demo and the node benchmark.
 ROS_ENV := ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST
 
@@ -26,15 +28,16 @@ test: venv
 	$(BIN)/python -m pytest -q test
 
 # pearl_node in the background, the bag's feature messages played into it live by pearl_play
-# (labels and accuracy printed per frame), then Ctrl-C to the node.
+# (labels and accuracy printed per frame), then Ctrl-C to the node; then pearl_replay writes the
+# output bag of the same bag with the same parameters to $(DEMO_OUT).
 demo: venv
 	@$(ROS_ENV) $(BIN)/pearl_node --ros-args -r features:=/feature_tracker/feature \
 	    --params-file config/pearl.yaml $(DEMO_ARGS) & node=$$!; \
 	$(ROS_ENV) $(BIN)/pearl_play $(DEMO_BAG) --timeout 20; status=$$?; \
 	kill -INT $$node; wait $$node; \
-	exit $$status
-	@# HOOK(pearl_replay): write the output bag of the same bag with the same parameters here,
-	@# e.g. $(BIN)/pearl_replay $(DEMO_BAG) --output <out bag> --params config/pearl.yaml --force
+	test $$status -eq 0 || exit $$status; \
+	mkdir -p $(dir $(DEMO_OUT)) && \
+	$(BIN)/pearl_replay $(DEMO_BAG) --output $(DEMO_OUT) --params config/pearl.yaml --force
 
 bench: venv
 	$(BIN)/pearl_bench hopkins155 ../shared/data/hopkins155 --frames all

@@ -213,8 +213,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         summary = 'n/a' if final is None else f'{100 * final:.1f}%'
         print(f'{len(answers) - missing}/{len(answers)} frames answered; '
               f'misclassification on the last frame: {summary}')
-        # HOOK(pearl_replay): the output bag of the same frames is written by pearl_replay
-        # (make demo runs it after this command).
+        # The output bag of the same frames is pearl_replay's job (make demo runs it next).
         return 0 if missing == 0 else 1
     except KeyboardInterrupt:
         return 1
