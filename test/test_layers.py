@@ -14,7 +14,13 @@ MODULES = (
     'pearl_ros.bagio.decode',
     'pearl_ros.bagio.encode',
     'pearl_ros.datasets.hopkins',
+    'pearl_ros.online.segmenter',
+    'pearl_ros.datasets.synthetic',
     'pearl_ros.cli.make_bag',
+    'pearl_ros.cli.segment_bag',
+    'pearl_ros.cli.replay',
+    'pearl_ros.cli.bench',
+    'pearl_ros.cli.bench_stream',
 )
 
 # A finder first on sys.meta_path records every attempt to import ROS client code, so even an
