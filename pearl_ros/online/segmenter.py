@@ -276,8 +276,7 @@ def _vote(uv: np.ndarray, fitted: np.ndarray, fitted_labels: np.ndarray, young: 
     _, idx = cKDTree(uv[labelled]).query(uv[young], k=k)
     idx = np.asarray(idx).reshape(young.size, k)
     near = votes[idx]  # (Y, k), nearest first
-    for i, row in enumerate(near):
-        values, first, counts = np.unique(row, return_index=True, return_counts=True)
-        best = np.flatnonzero(counts == counts.max())
-        out[i] = values[best[np.argmin(first[best])]]
-    return out
+    # How often each neighbour's label occurs in its row; the first position with the highest
+    # count holds the most common label, the nearer one on a tie.
+    counts = np.count_nonzero(near[:, :, None] == near[:, None, :], axis=2)
+    return near[np.arange(young.size), np.argmax(counts, axis=1)]
