@@ -157,6 +157,7 @@ def fit(
     rng: np.random.Generator | int | None = None,
     init: np.ndarray | None = None,
     deadline: float | None = None,
+    init_cost: float = 0.0,
 ) -> PearlResult:
     """Segment tracked points into rigid motions; the number of motions is found, not given.
 
@@ -174,6 +175,10 @@ def fit(
         ``time.perf_counter()`` value after which no further expand / re-estimate iteration or
         proposal round starts (the first one always runs). The result is then no longer a
         function of the seed alone.
+    init_cost : float, cost units, >= 0
+        With ``init``: a term ``init_cost * [f_p != init model of p]`` added to the energy for
+        every point with an init segment, which keeps labels from flickering between calls
+        (a temporal Potts term). The model of a segment stays "its" model through refits.
 
     Returns
     -------
@@ -188,13 +193,19 @@ def fit(
     model, data = setting.model, setting.data
     n = data.shape[0]
 
+    if not init_cost >= 0:
+        raise InputError(f'init_cost must be >= 0, got {init_cost!r}')
+    prior = np.full(n, -1, dtype=np.int64)  # init segment of each point
     if init is None:
         params = np.empty((0,) + _param_shape(model, data))
         sigmas = np.empty(0)
         residuals = np.empty((0, n))
         labels = np.full(n, OUTLIER, dtype=np.int64)
+        origin = np.empty(0, dtype=np.int64)
     else:
-        params, sigmas, residuals, labels = _segment_models(setting, _check_labels(init, n))
+        prior = _check_labels(init, n)
+        params, sigmas, residuals, labels = _segment_models(setting, prior)
+        origin = _origins(labels, prior, params.shape[0])  # init segment of each model, or -1
     history: list[float] = []
     iterations = 0
     for _ in range(config.rounds):
@@ -205,7 +216,9 @@ def fit(
         params = np.concatenate([params, fresh])
         sigmas = np.concatenate([sigmas, fresh_sigmas])
         residuals = np.concatenate([residuals, fresh_residuals])
-        unary = setting.unary(residuals, sigmas)
+        origin = np.concatenate([origin, np.full(fresh.shape[0], -1, dtype=np.int64)])
+        bias = _init_bias(prior, origin, init_cost)
+        unary = setting.unary(residuals, sigmas) + bias
         problem = setting.problem(unary)  # holds unary itself: _refit's updates show through
         timings['propose'] += time.perf_counter() - start
 
@@ -218,8 +231,9 @@ def fit(
             labels = sweep(problem, labels)
             timings['expand'] += time.perf_counter() - start
             start = time.perf_counter()
-            _refit(setting, labels, params, sigmas, residuals, unary)
-            labels = _expand_refit(setting, problem, labels, params, sigmas, residuals, unary)
+            _refit(setting, labels, params, sigmas, residuals, unary, bias)
+            labels = _expand_refit(setting, problem, labels, params, sigmas, residuals, unary,
+                                   bias)
             timings['refit'] += time.perf_counter() - start
             new = energy(problem, labels)
             history.append(new)
@@ -229,8 +243,10 @@ def fit(
         # Only the models in use survive into the next round (and into the result).
         labels, kept = _compress(labels)
         params, sigmas, residuals = params[kept], sigmas[kept], residuals[kept]
+        origin = origin[kept]
 
-    final = energy(setting.problem(setting.unary(residuals, sigmas)), labels)
+    unary = setting.unary(residuals, sigmas) + _init_bias(prior, origin, init_cost)
+    final = energy(setting.problem(unary), labels)
     out = np.where(labels == OUTLIER, -1, labels - 1)
     return PearlResult(out, params, sigmas, final, tuple(history), iterations, timings,
                        setting.scale)
@@ -319,6 +335,24 @@ def _segment_models(setting: _Setting, labels: np.ndarray
     return (np.asarray(params, dtype=np.float64).reshape((len(params),) + shape[1:]),
             np.asarray(sigmas, dtype=np.float64), np.asarray(rows).reshape(-1, data.shape[0]),
             inner)
+
+
+def _origins(labels: np.ndarray, prior: np.ndarray, num_models: int) -> np.ndarray:
+    """The init segment each of the ``num_models`` models of :func:`_segment_models` was fitted
+    to (its members' ``prior``)."""
+    origin = np.full(num_models, -1, dtype=np.int64)
+    inlier = labels != OUTLIER
+    origin[labels[inlier] - 1] = prior[inlier]
+    return origin
+
+
+def _init_bias(prior: np.ndarray, origin: np.ndarray, cost: float) -> np.ndarray:
+    """Rows ``(1 + K, N)`` of the init term: ``cost`` where a point with an init segment takes
+    any label but that segment's model (the outlier label and new models included)."""
+    rows = np.concatenate([[-1], origin])  # the outlier label is no segment's
+    if not cost:
+        return np.zeros((rows.size, prior.size))
+    return cost * ((prior[None, :] >= 0) & (rows[:, None] != prior[None, :]))
 
 
 def _past(deadline: float | None) -> bool:
@@ -433,23 +467,27 @@ def _refit_one(setting: _Setting, members: np.ndarray, start: np.ndarray
 
 
 def _refit(setting: _Setting, labels: np.ndarray, params: np.ndarray, sigmas: np.ndarray,
-           residuals: np.ndarray, unary: np.ndarray) -> None:
+           residuals: np.ndarray, unary: np.ndarray, bias: np.ndarray) -> None:
     """Re-estimate every model in use, and its noise level, from its points; keep a refit only
     if it lowers their cost.
 
     ``params``, ``sigmas``, ``residuals`` and ``unary`` are updated in place, so the energy never goes up.
+    ``unary`` rows are data costs plus the fixed ``bias`` rows (:func:`_init_bias`).
     """
     for label in np.unique(labels):
         if label == OUTLIER:
             continue
         members = np.flatnonzero(labels == label)
         fitted = _refit_one(setting, members, params[label - 1])
-        if fitted is not None and fitted[3][members].sum() < unary[label, members].sum():
-            params[label - 1], sigmas[label - 1], residuals[label - 1], unary[label] = fitted
+        if fitted is not None and (fitted[3][members].sum()
+                                   < unary[label, members].sum() - bias[label, members].sum()):
+            params[label - 1], sigmas[label - 1], residuals[label - 1] = fitted[:3]
+            unary[label] = fitted[3] + bias[label]
 
 
 def _expand_refit(setting: _Setting, problem: Problem, labels: np.ndarray, params: np.ndarray,
-                  sigmas: np.ndarray, residuals: np.ndarray, unary: np.ndarray) -> np.ndarray:
+                  sigmas: np.ndarray, residuals: np.ndarray, unary: np.ndarray,
+                  bias: np.ndarray) -> np.ndarray:
     """Expansion moves judged after the models that lose points are refitted to what is left.
 
     A plain expansion of a tight model for one motion out of a loose model that covers two is
@@ -499,13 +537,14 @@ def _expand_refit(setting: _Setting, problem: Problem, labels: np.ndarray, param
             fitted = _refit_one(setting, members, params[label - 1]) if members.size else None
             if fitted is not None:
                 refits[label] = fitted
-                trial[label] = fitted[3]
+                trial[label] = fitted[3] + bias[label]
         moved_energy = energy(Problem(trial, problem.edges, problem.weights,
                                       problem.label_costs), moved)
         if moved_energy < current - 1e-9:
             labels, current = moved, moved_energy
             for label, fitted in refits.items():
-                params[label - 1], sigmas[label - 1], residuals[label - 1], unary[label] = fitted
+                params[label - 1], sigmas[label - 1], residuals[label - 1] = fitted[:3]
+                unary[label] = fitted[3] + bias[label]
     return labels
 
 

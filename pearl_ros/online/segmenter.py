@@ -188,7 +188,8 @@ class OnlineSegmenter:
             init = init.reshape(-1) - int(np.any(prior == UNLABELLED))
         budget = self.online.budget_ms
         deadline = start + budget / 1e3 if budget > 0 else None
-        return fit(tracks, config, self._rng, init=init, deadline=deadline).labels
+        return fit(tracks, config, self._rng, init=init, deadline=deadline,
+                   init_cost=self.online.temporal_cost if warm else 0.0).labels
 
     def _scale(self, tracks: np.ndarray, config: PearlConfig) -> float:
         """The noise scale of ``config.model``, estimated again every ``_RESCALE`` frames: it

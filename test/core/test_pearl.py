@@ -105,3 +105,57 @@ def test_evaluate_segmentation_rejects_labels_of_the_wrong_length(affine_scene):
     tracks, truth = affine_scene(sizes=(40,))
     with pytest.raises(InputError, match='labels'):
         evaluate_segmentation(tracks, truth[:-1])
+
+
+# The init term (temporal Potts in the online segmenter) -----------------------------------
+
+
+def _corrupted_init(truth: np.ndarray, moved: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """The true segmentation with ``moved`` points of motion 0 put in motion 1."""
+    init = truth.copy()
+    wrong = np.random.default_rng(seed).choice(np.flatnonzero(truth == 0), moved, replace=False)
+    init[wrong] = 1
+    return init, wrong
+
+
+def test_without_init_cost_a_warm_start_corrects_wrong_init_labels(affine_scene):
+    tracks, truth = affine_scene(sizes=(200, 150), noise=0.5, seed=2)
+    init, wrong = _corrupted_init(truth, 12, seed=0)
+    result = fit(tracks, PearlConfig(rounds=1), rng=0, init=init)
+    assert misclassification(result.labels, truth) < 0.01
+
+
+def test_a_dear_init_cost_keeps_the_init_labels_a_cheap_one_does_not(affine_scene):
+    # Behaviour flip: at 1e4 cost units a point pays far more to leave its init segment than
+    # any residual (the outlier cost is about 100 units), so the wrong labels stay put.
+    tracks, truth = affine_scene(sizes=(200, 150), noise=0.5, seed=2)
+    init, wrong = _corrupted_init(truth, 12, seed=0)
+    kept = fit(tracks, PearlConfig(rounds=1), rng=0, init=init, init_cost=1e4)
+    assert misclassification(kept.labels, init) == 0.0
+    cheap = fit(tracks, PearlConfig(rounds=1), rng=0, init=init, init_cost=0.5)
+    assert misclassification(cheap.labels, truth) < 0.01
+
+
+def test_energy_with_an_init_cost_never_increases(affine_scene):
+    tracks, truth = affine_scene(sizes=(120, 90, 70), noise=1.0, seed=5)
+    init, _ = _corrupted_init(truth, 10, seed=1)
+    history = np.array(fit(tracks, rng=3, init=init, init_cost=2.0).energy_history)
+    assert history.size >= 2
+    assert np.all(np.diff(history) <= 1e-6)
+
+
+def test_the_init_term_costs_nothing_when_every_point_keeps_its_segment(affine_scene):
+    # Started from the truth, both fits keep it; the term then adds exactly zero, so the
+    # energies agree (the outlier label and new models would each have cost 5 units a point).
+    tracks, truth = affine_scene(sizes=(200, 150), noise=0.5, seed=2)
+    plain = fit(tracks, PearlConfig(rounds=1), rng=0, init=truth)
+    with_term = fit(tracks, PearlConfig(rounds=1), rng=0, init=truth, init_cost=5.0)
+    assert misclassification(plain.labels, truth) == 0.0
+    assert misclassification(with_term.labels, truth) == 0.0
+    assert with_term.energy == pytest.approx(plain.energy, rel=1e-9)
+
+
+def test_a_negative_init_cost_is_rejected(affine_scene):
+    tracks, truth = affine_scene(sizes=(60, 50), noise=0.5)
+    with pytest.raises(InputError, match='init_cost'):
+        fit(tracks, rng=0, init=truth, init_cost=-1.0)
