@@ -385,25 +385,23 @@ def _setting(tracks: np.ndarray, config: PearlConfig, rng: np.random.Generator) 
 
 
 def noise_scale(tracks: np.ndarray, config: PearlConfig | None = None,
-                rng: np.random.Generator | int | None = None, refine: bool = True) -> float:
+                rng: np.random.Generator | int | None = None) -> float:
     """The noise scale (px) :func:`fit` estimates when ``config.noise`` is 0.
 
     Callers that fit similar data again and again (the online segmenter) estimate it once and
-    pass it on as ``config.noise``, saving the setup cost of every fit. Without ``refine`` the
-    neighbourhood models are linear least-squares fits (:func:`local_scale`): the same scale for
-    affine subspaces, a larger one for two-view models, in a few ms instead of a few hundred.
+    pass it on as ``config.noise``, saving the setup cost of every fit.
     """
     config = config or PearlConfig()
     model = get_model(config.model)
     data = model.data(tracks)
     anchor = np.asarray(tracks, dtype=np.float64)[-1]
     neighbours = nearest_neighbours(anchor, _NEIGHBOURS)
-    return _estimate_scale(model, data, neighbours, config, np.random.default_rng(rng), refine)
+    return _estimate_scale(model, data, neighbours, config, np.random.default_rng(rng))
 
 
 def _estimate_scale(model: MotionModel, data: np.ndarray, neighbours: np.ndarray,
-                    config: PearlConfig, rng: np.random.Generator, refine: bool = True) -> float:
-    return max(local_scale(model, data, neighbours, rng, refine=refine), config.min_noise)
+                    config: PearlConfig, rng: np.random.Generator) -> float:
+    return max(local_scale(model, data, neighbours, rng), config.min_noise)
 
 
 def _propose(setting: _Setting, labels: np.ndarray, params: np.ndarray, config: PearlConfig,

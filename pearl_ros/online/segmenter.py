@@ -196,11 +196,7 @@ class OnlineSegmenter:
         changes slowly, and estimating it costs more than a warm-started fit."""
         scale, age = self._scales.get(config.model, (0.0, _RESCALE))
         if age >= _RESCALE:
-            # Refined for two-view models only: for affine subspaces the batched linear fits are
-            # the refits. A two-view scale takes a quarter of a second to refine, but the
-            # linear one comes out 1.5-3x too large and costs two-view accuracy.
-            refine = config.model in _TWO_VIEW
-            scale, age = noise_scale(tracks, config, self._rng, refine=refine), 0
+            scale, age = noise_scale(tracks, config, self._rng), 0
         self._scales[config.model] = (scale, age + 1)
         return scale
 

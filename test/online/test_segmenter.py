@@ -143,9 +143,11 @@ def test_too_few_features_give_minus_one_without_error():
     (np.array([1.5, 2.0]), np.zeros((2, 2)), 'integers'),
 ])
 def test_bad_frames_raise_and_leave_the_state_untouched(ids, uv, match):
+    # No time budget: both runs must give the same labels whatever the machine's load.
     frames = list(synthetic_stream(150, 14, (BodySpec(0.4),), seed=6))
-    reference, expected = run(frames)
-    seg, _ = run(frames[:-1])
+    untimed = OnlineConfig(budget_ms=0.0)
+    reference, expected = run(frames, OnlineSegmenter(online=untimed))
+    seg, _ = run(frames[:-1], OnlineSegmenter(online=untimed))
     with pytest.raises(InputError, match=match):
         seg.process(frames[-1].stamp_ns - 1, ids, uv)
     assert seg.process(frames[-1].stamp_ns, frames[-1].ids, frames[-1].uv).labels.tolist() \

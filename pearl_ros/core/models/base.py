@@ -47,8 +47,9 @@ class MotionModel(Protocol):
     def fit_groups(self, data: np.ndarray, groups: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Linear least-squares fit of one hypothesis per row of ``groups`` ``(K, m)`` int,
         m >= min_samples, all at once (no iterative refinement): cheap approximate fits of many
-        small point sets. Returns ``params`` ``(K, ...)`` and ``ok`` ``(K,)`` as
-        :meth:`fit_minimal` does.
+        small point sets, to measure their residual level. Returns ``params`` ``(K, ...)`` and
+        ``ok`` ``(K,)`` as :meth:`fit_minimal` does; a model may leave out constraints that
+        would inflate the residuals of such small sets (the fundamental matrix's rank).
         """
         ...
 

@@ -11,6 +11,8 @@ from pearl_ros.core.errors import InputError
 from pearl_ros.core.models import get_model
 from pearl_ros.core.models._twoview import FAR
 from pearl_ros.core.models.fundamental import Fundamental, _rotations
+from pearl_ros.core.neighbourhood import nearest_neighbours
+from pearl_ros.core.scale import local_scale
 from twoview_oracles import assert_batch_equals_singles, normalised_pairs, similarity
 
 
@@ -340,3 +342,14 @@ def test_fit_groups_recovers_the_true_matrix_from_groups_of_exact_points(model, 
     assert ok.all()
     for F in params:
         np.testing.assert_allclose(align(F, truth.F), truth.F, atol=1e-7)
+
+
+@pytest.mark.parametrize('noise', [0.5, 1.5])
+def test_noise_scale_of_a_rigid_scene_is_its_pixel_noise(scene, noise):
+    # fit_groups serves the automatic noise scale: on a general 3-D scene (a plane would leave
+    # 11-point groups a family of F to overfit with) it must find the pixel noise it was given.
+    truth = scene(n=400, noise=noise, seed=7)
+    model = Fundamental()
+    level = local_scale(model, truth.data, nearest_neighbours(truth.tracks[-1], 10),
+                        np.random.default_rng(0))
+    assert level == pytest.approx(noise, rel=0.35)
