@@ -30,7 +30,7 @@ class OnlineConfig:
         0.0, "cost units for a feature labelled other than its previous frame's motion (warm "
         'start only): a temporal Potts term against label flicker', low=0.0, high=1e6)
     budget_ms: float = spec(
-        40.0, 'ms, per-frame time budget of the optimiser; 0 = none. When it bites, labels '
+        20.0, 'ms, per-frame time budget of the optimiser; 0 = none. When it bites, labels '
         'depend on the machine', low=0.0, high=1e6)
     min_coverage: float = spec(
         0.5, "share of a frame's features that must span the frames the models are fitted over",
