@@ -159,3 +159,15 @@ def test_a_negative_init_cost_is_rejected(affine_scene):
     tracks, truth = affine_scene(sizes=(60, 50), noise=0.5)
     with pytest.raises(InputError, match='init_cost'):
         fit(tracks, rng=0, init=truth, init_cost=-1.0)
+
+
+def test_a_passed_deadline_stops_after_the_first_iteration(affine_scene):
+    # The first expand / re-estimate iteration always runs, so a deadline already passed gives
+    # one iteration and one proposal round, and still a labelling of every point.
+    tracks, truth = affine_scene(sizes=(120, 90), noise=0.5, seed=8)
+    late = fit(tracks, rng=0, deadline=0.0)
+    free = fit(tracks, rng=0)
+    assert late.iterations == 1 and len(late.energy_history) == 1
+    assert free.iterations > 1
+    assert late.labels.shape == truth.shape
+    assert late.energy >= free.energy - 1e-6
