@@ -27,6 +27,7 @@ from pearl_ros.core.scale import local_scale
 OUTLIER = 0
 _NEIGHBOURS = 10  # image neighbours a local sample is drawn from
 _MAX_PASSES = 5  # expansion passes over the labels within one sweep
+_MAX_FAILED = 20  # unused labels rejected in a row that end a pass (the best by gain go first)
 _FLOOR = 0.5  # least model noise level, in units of the fresh-proposal level
 _SEGMENT_SAMPLES = 20  # minimal samples drawn inside each current segment per round
 _SPLIT_TRIES = 3  # expand-and-refit moves tried per iteration
@@ -104,6 +105,7 @@ def sweep(problem: Problem, labels: np.ndarray) -> np.ndarray:
     for _ in range(_MAX_PASSES):
         changed = False
         tried = np.zeros(unary.shape[0], dtype=bool)
+        failed = 0  # unused labels rejected in a row
         while True:
             used = np.zeros(unary.shape[0], dtype=bool)
             used[labels] = True
@@ -111,13 +113,16 @@ def sweep(problem: Problem, labels: np.ndarray) -> np.ndarray:
             gain = np.where(used, np.inf, gain - costs)
             gain[tried] = -np.inf
             alpha = int(np.argmax(gain))
-            if not gain[alpha] > 0:
+            if not gain[alpha] > 0 or (failed >= _MAX_FAILED and not used[alpha]):
                 break
             tried[alpha] = True
             moved = expansion_move(problem, labels, alpha)
             moved_energy = energy(problem, moved)
             if moved_energy < current - 1e-9:
                 labels, current, changed = moved, moved_energy, True
+                failed = 0
+            elif not used[alpha]:
+                failed += 1
         if not changed:
             break
     return labels
