@@ -18,6 +18,7 @@ MODULES = (
     'pearl_ros.datasets.synthetic',
     'pearl_ros.cli.make_bag',
     'pearl_ros.cli.segment_bag',
+    'pearl_ros.frontend',
     'pearl_ros.cli.replay',
     'pearl_ros.cli.bench',
     'pearl_ros.cli.bench_stream',

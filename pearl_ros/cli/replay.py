@@ -51,6 +51,7 @@ from pearl_ros.bagio.reader import (
 from pearl_ros.bagio.writer import STORAGES, is_bag, open_output_bag
 from pearl_ros.core.config import PearlConfig
 from pearl_ros.core.errors import BagError, InputError, PearlError
+from pearl_ros.frontend import NODE_SPECS
 from pearl_ros.online.config import OnlineConfig, build_configs, known_names, parse_assignments
 from pearl_ros.online.segmenter import OnlineSegmenter
 
@@ -63,15 +64,13 @@ MESSAGE_TYPES = encode.MessageTypes.from_typestore(TYPESTORE)
 _Header: Any = TYPESTORE.types['std_msgs/msg/Header']
 _Time: Any = TYPESTORE.types['builtin_interfaces/msg/Time']
 
-# pearl_node's own parameters (pearl_ros.ros.params.NODE_SPECS, which needs rclpy to import).
-# A node parameter file may hold them: the ones that change what is computed apply here too, the
-# ones about live transport (subscription type, QoS, timers) have no meaning in a replay.
-# Their defaults are the node's (a test compares them with NODE_SPECS).
+# pearl_node's own parameters (NODE_SPECS). A node parameter file may hold them: the ones that
+# change what is computed apply here too, the ones about live transport (subscription type, QoS,
+# timers) have no meaning in a replay.
 NODE_APPLIED = ('layout', 'camera_id', 'max_features', 'background_motion')
 NODE_IGNORED = ('msg_type', 'qos', 'qos_depth', 'diagnostics_period')
 _NODE_DEFAULTS: dict[str, Any] = {
-    'layout': 'auto', 'camera_id': 0, 'max_features': 2000, 'background_motion': -1,
-}
+    item.name: item.default for item in NODE_SPECS if item.name in NODE_APPLIED}
 _ROS_NODE_NAMES = ('pearl_node', '/pearl_node', '/**')
 
 _MAX_WARNINGS = 20  # skipped messages reported one by one on stderr; the rest only counted

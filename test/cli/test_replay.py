@@ -43,6 +43,7 @@ from pearl_ros.cli.replay import (
     settings_from,
 )
 from pearl_ros.core.metrics import misclassification
+from pearl_ros.frontend import NODE_SPECS
 from pearl_ros.online.config import build_configs
 from pearl_ros.online.segmenter import OnlineSegmenter
 
@@ -274,8 +275,6 @@ def test_the_nodes_parameter_file_is_accepted() -> None:
 
 
 def test_node_parameters_known_to_replay_are_the_nodes_with_its_defaults() -> None:
-    from pearl_ros.ros.params import NODE_SPECS
-
     assert sorted(NODE_APPLIED + NODE_IGNORED) == sorted(item.name for item in NODE_SPECS)
     defaults = {item.name: item.default for item in NODE_SPECS}
     settings = ReplaySettings()
