@@ -106,11 +106,13 @@ def sweep(problem: Problem, labels: np.ndarray) -> np.ndarray:
         changed = False
         tried = np.zeros(unary.shape[0], dtype=bool)
         failed = 0  # unused labels rejected in a row
+        gain = None  # the bounds change only when a move is accepted
         while True:
-            used = np.zeros(unary.shape[0], dtype=bool)
-            used[labels] = True
-            gain = np.maximum(unary[labels, idx][None, :] - unary, 0.0).sum(axis=1)
-            gain = np.where(used, np.inf, gain - costs)
+            if gain is None:
+                used = np.zeros(unary.shape[0], dtype=bool)
+                used[labels] = True
+                gain = np.maximum(unary[labels, idx][None, :] - unary, 0.0).sum(axis=1)
+                gain = np.where(used, np.inf, gain - costs)
             gain[tried] = -np.inf
             alpha = int(np.argmax(gain))
             if not gain[alpha] > 0 or (failed >= _MAX_FAILED and not used[alpha]):
@@ -119,7 +121,7 @@ def sweep(problem: Problem, labels: np.ndarray) -> np.ndarray:
             moved = expansion_move(problem, labels, alpha)
             moved_energy = energy(problem, moved)
             if moved_energy < current - 1e-9:
-                labels, current, changed = moved, moved_energy, True
+                labels, current, changed, gain = moved, moved_energy, True, None
                 failed = 0
             elif not used[alpha]:
                 failed += 1
