@@ -165,6 +165,7 @@ def fit(
     init: np.ndarray | None = None,
     deadline: float | None = None,
     init_cost: float = 0.0,
+    propose: bool = True,
 ) -> PearlResult:
     """Segment tracked points into rigid motions; the number of motions is found, not given.
 
@@ -186,6 +187,9 @@ def fit(
         With ``init``: a term ``init_cost * [f_p != init model of p]`` added to the energy for
         every point with an init segment, which keeps labels from flickering between calls
         (a temporal Potts term). The model of a segment stays "its" model through refits.
+    propose : bool
+        With ``init``, False skips the fresh proposals: the init models are only relabelled and
+        re-estimated (a cheap warm step between proposal batches). Ignored without ``init``.
 
     Returns
     -------
@@ -219,7 +223,10 @@ def fit(
         if iterations and _past(deadline):
             break
         start = time.perf_counter()
-        fresh, fresh_sigmas, fresh_residuals = _propose(setting, labels, params, config, rng)
+        if propose or init is None:
+            fresh, fresh_sigmas, fresh_residuals = _propose(setting, labels, params, config, rng)
+        else:
+            fresh, fresh_sigmas, fresh_residuals = params[:0], sigmas[:0], residuals[:0]
         params = np.concatenate([params, fresh])
         sigmas = np.concatenate([sigmas, fresh_sigmas])
         residuals = np.concatenate([residuals, fresh_residuals])

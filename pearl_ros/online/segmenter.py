@@ -33,6 +33,7 @@ from pearl_ros.online.window import SlidingWindow
 
 UNLABELLED = -1
 _RESCALE = 15  # frames between estimates of the noise scale
+_RISE = 0.05  # rise of the energy per feature on a warm frame without proposals that calls them
 _TWO_VIEW = ('fundamental', 'homography')
 
 
@@ -85,6 +86,8 @@ class OnlineSegmenter:
         self._label_of_track: dict[int, int] = {}  # track key -> motion number, last frame
         self._next_label = 0
         self._scales: dict[str, tuple[float, int]] = {}  # model -> (px, fitted frames since)
+        self._quiet = 0  # warm fits since the last one with fresh proposals
+        self._energy_ref = 0.0  # energy per feature of that fit
 
     @property
     def frames_in_window(self) -> int:
@@ -95,6 +98,7 @@ class OnlineSegmenter:
         self._window.clear()
         self._label_of_track = {}
         self._scales = {}
+        self._quiet = 0
 
     def reconfigure(self, config: PearlConfig | None = None,
                     online: OnlineConfig | None = None) -> None:
@@ -188,8 +192,21 @@ class OnlineSegmenter:
             init = init.reshape(-1) - int(np.any(prior == UNLABELLED))
         budget = self.online.budget_ms
         deadline = start + budget / 1e3 if budget > 0 else None
-        return fit(tracks, config, self._rng, init=init, deadline=deadline,
-                   init_cost=self.online.temporal_cost if warm else 0.0).labels
+        # Fresh proposals on a cold fit and on every propose_every-th warm one; the warm frames
+        # between only relabel and refit the motions already there, unless the energy per
+        # feature rose since the last proposals (a motion starting, say): then the next frame
+        # proposes.
+        propose = not warm or self._quiet + 1 >= self.online.propose_every
+        result = fit(tracks, config, self._rng, init=init, deadline=deadline,
+                     init_cost=self.online.temporal_cost if warm else 0.0, propose=propose)
+        per_feature = result.energy / max(tracks.shape[1], 1)
+        if propose:
+            self._quiet, self._energy_ref = 0, per_feature
+        elif per_feature > (1.0 + _RISE) * self._energy_ref:
+            self._quiet = self.online.propose_every
+        else:
+            self._quiet += 1
+        return result.labels
 
     def _scale(self, tracks: np.ndarray, config: PearlConfig) -> float:
         """The noise scale of ``config.model``, estimated again every ``_RESCALE`` frames: it

@@ -171,3 +171,14 @@ def test_a_passed_deadline_stops_after_the_first_iteration(affine_scene):
     assert free.iterations > 1
     assert late.labels.shape == truth.shape
     assert late.energy >= free.energy - 1e-6
+
+
+def test_without_proposals_a_warm_start_keeps_its_models(affine_scene):
+    # Behaviour flip: started from one segment covering both motions, only fresh proposals can
+    # split it; with propose=False the models are only relabelled and refitted.
+    tracks, truth = affine_scene(sizes=(200, 150), noise=0.5, seed=2)
+    merged = np.zeros_like(truth)
+    kept = fit(tracks, rng=0, init=merged, propose=False)
+    split = fit(tracks, rng=0, init=merged)
+    assert kept.num_models == 1
+    assert split.num_models == 2 and misclassification(split.labels, truth) < 0.02

@@ -61,6 +61,20 @@ def test_a_motion_starting_mid_stream_gets_a_fresh_number_and_the_background_kee
         assert misclassification(results[t].labels, frames[t].truth) < 0.15
 
 
+def test_with_rare_proposals_a_rise_in_energy_still_calls_them_when_a_motion_starts():
+    # propose_every=1000: no scheduled proposals after the first warm frame, so the new motion
+    # can only be found because its start raises the energy per feature (the same scene as
+    # above, found by frame 23 with proposals every frame).
+    start = 15
+    frames = list(synthetic_stream(200, 45, (BodySpec(0.5, start=start),), seed=5))
+    _, results = run(frames, OnlineSegmenter(online=dataclasses.replace(UNTIMED,
+                                                                        propose_every=1000)))
+    assert results[start - 1].motions == 1
+    for t in range(start + WINDOW + 5, len(frames)):
+        assert results[t].motions == 2
+        assert misclassification(results[t].labels, frames[t].truth) < 0.15
+
+
 def test_an_object_that_stops_retires_its_number_for_good():
     stop = 15
     frames = list(synthetic_stream(200, 45, (BodySpec(0.4, stop=stop),), seed=2))
