@@ -17,7 +17,7 @@ setup(
         ('share/' + package_name + '/launch', glob('launch/*.launch.py')),
     ],
     python_requires='>=3.10',
-    install_requires=['setuptools', 'numpy', 'scipy', 'PyMaxflow', 'rosbags'],
+    install_requires=['setuptools', 'numpy', 'scipy', 'PyMaxflow', 'rosbags', 'ruamel.yaml'],
     zip_safe=True,
     maintainer='pearl_ros maintainers',
     maintainer_email='maintainers@pearl-ros.invalid',
