@@ -42,8 +42,8 @@ class OnlineConfig:
         'fundamental', 'model between the window ends when only two frames span enough '
         'features, or when model is a two-view one: fundamental | homography',
         choices=TWO_VIEW_MODELS)
-    neighbours: int = spec(5, 'image neighbours that vote the label of a feature too young to '
-                           'be fitted', low=1, high=100)
+    neighbours: int = spec(5, 'image neighbours that vote the label of a feature seen in one '
+                           'frame only (or too young for a two-view fit)', low=1, high=100)
     seed: int = spec(0, 'seed of the proposal sampler; equal seeds and frames give equal labels',
                      low=0, high=2**63 - 1)
 

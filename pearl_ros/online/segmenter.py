@@ -4,8 +4,9 @@ Each frame, the features whose tracks span the fitting frames of the window are 
 :func:`pearl_ros.core.pearl.fit`. Warm-started (the default), that fit starts from the previous
 frame's segmentation of the same tracks (its models refitted to the current window) and adds a
 small batch of fresh proposals: the thesis' "mix the optimal models with a new batch of samples"
-(Isack, sec. 2.3.3), spread over frames. Features too young for the fit take the label of most of
-their labelled image neighbours.
+(Isack, sec. 2.3.3), spread over frames. Tracks too young for the fit go to the motion whose
+subspace over their own frames is nearest (affine models, 2 frames or more); a feature seen in
+one frame only takes the label of most of its labelled image neighbours.
 
 Label identity: motions carry numbers that persist. After each fit, its segments are matched
 one-to-one to the numbers their tracks had in the previous frame (the assignment that agrees on
@@ -33,6 +34,9 @@ from pearl_ros.online.window import SlidingWindow
 
 UNLABELLED = -1
 _RESCALE = 15  # frames between estimates of the noise scale
+_YOUNG_MIN_AGE = 2  # frames a young track needs for its own trajectory to label it
+_SUBSPACE_DIM = 3  # affine dimension of a rigid motion's trajectories
+_SUBSPACE_MEMBERS = 5  # fitted members a motion needs to offer its subspace to young tracks
 _RISE = 0.05  # rise of the energy per feature on a warm frame without proposals that calls them
 _TWO_VIEW = ('fundamental', 'homography')
 
@@ -162,8 +166,13 @@ class OnlineSegmenter:
             segments = self._fit(tracks, model_name, prior, warm, start)
             motion_labels[fitted] = self._identify(segments, prior)
             young = np.setdiff1d(np.arange(keys.size), fitted)
-            motion_labels[young] = _vote(uv[seen], fitted, motion_labels[fitted], young,
-                                         self.online.neighbours)
+            tracked = young[age[young] >= _YOUNG_MIN_AGE] if model_name not in _TWO_VIEW \
+                else young[:0]
+            newborn = np.setdiff1d(young, tracked)
+            motion_labels[tracked] = _nearest_subspace(coords, age, fitted,
+                                                       motion_labels[fitted], tracked)
+            motion_labels[newborn] = _vote(uv[seen], fitted, motion_labels[fitted], newborn,
+                                           self.online.neighbours)
         else:
             span, model_name = 0, ''
         labels[seen] = motion_labels
@@ -275,6 +284,64 @@ def _span(age: np.ndarray, coverage: float) -> int:
     # The k-th oldest age, k = ceil(coverage * N): that many features reach back this far.
     need = max(int(np.ceil(coverage * age.size)), 1)
     return int(np.sort(age)[::-1][need - 1])
+
+
+def _nearest_subspace(coords: np.ndarray, age: np.ndarray, fitted: np.ndarray,
+                      fitted_labels: np.ndarray, young: np.ndarray) -> np.ndarray:
+    """Labels of ``young`` tracks (each ``age`` < the fitted span): the motion whose members'
+    trajectories over the young track's own frames span the affine subspace nearest to it.
+
+    A rigid motion's trajectories over any frames lie in a 3-D affine subspace (Tomasi & Kanade
+    1992), so each motion's subspace over a young track's last ``age`` frames is refitted from
+    the motion's fitted members (principal components) and the track goes to the nearest. The
+    motion itself, not its image neighbourhood, decides: a vote of image neighbours errs along
+    every outline, where neighbours belong to another motion. A motion with fewer than
+    ``_SUBSPACE_MEMBERS`` members is not offered; -1 if none is.
+
+    Parameters
+    ----------
+    coords : (F, N, 2) float64, pixels, the window (NaN before a track's birth)
+    age : (N,) int, frames each track holds (its newest ``age``)
+    fitted, fitted_labels : (M,) int, the fitted tracks and their motion numbers (-1 outlier)
+    young : (Y,) int, tracks to label, each with an ``age`` of at least 2
+    """
+    out = np.full(young.size, UNLABELLED, dtype=np.int64)
+    motions = np.unique(fitted_labels[fitted_labels != UNLABELLED])
+    groups = [fitted[fitted_labels == motion] for motion in motions]
+    offered = np.array([g.size >= _SUBSPACE_MEMBERS for g in groups], dtype=bool)
+    if young.size == 0 or not offered.any():
+        return out
+    motions = motions[offered]
+    # Each motion's mean and scatter over the fitted span, once: those over a young track's
+    # last frames are their trailing entries and bottom-right block (centring is per coordinate).
+    span = int(age[fitted].min())
+    means, scatters = [], []
+    for members, ok in zip(groups, offered):
+        if ok:
+            trajectories = _rows(coords[-span:, members])
+            mean = trajectories.mean(axis=0)
+            means.append(mean)
+            scatters.append((trajectories - mean).T @ (trajectories - mean))
+    means_all, scatters_all = np.stack(means), np.stack(scatters)  # (K, D), (K, D, D)
+    for frames in np.unique(age[young]):
+        rows = np.flatnonzero(age[young] == frames)
+        points = _rows(coords[-frames:, young[rows]])  # (n, d), d = 2 * frames
+        d = points.shape[1]
+        dim = min(_SUBSPACE_DIM, d - 1)
+        # One batched eigendecomposition for all motions; columns by increasing eigenvalue.
+        _, vectors = np.linalg.eigh(scatters_all[:, -d:, -d:])
+        basis = vectors[:, :, ::-1][:, :, :dim]  # (K, d, dim)
+        offset = points[None, :, :] - means_all[:, None, -d:]  # (K, n, d)
+        inside = np.einsum('knd,kde->kne', offset, basis)
+        distance_sq = np.einsum('knd,knd->kn', offset, offset) - np.einsum('kne,kne->kn',
+                                                                           inside, inside)
+        out[rows] = motions[np.argmin(distance_sq, axis=0)]
+    return out
+
+
+def _rows(tracks: np.ndarray) -> np.ndarray:
+    """(F, N, 2) -> (N, 2F) trajectory rows."""
+    return np.transpose(tracks, (1, 0, 2)).reshape(tracks.shape[1], -1)
 
 
 def _vote(uv: np.ndarray, fitted: np.ndarray, fitted_labels: np.ndarray, young: np.ndarray,

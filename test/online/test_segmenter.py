@@ -116,24 +116,48 @@ def test_an_id_that_comes_back_is_a_new_track():
     assert sorted(age.tolist()) == [1] + [3] * 29
 
 
-def test_young_features_take_their_neighbours_labels():
-    frames = list(synthetic_stream(200, 40, (BodySpec(0.4),), death_rate=0.05, seed=0))
-    seg, results = run(frames)
+def _ages(frames, t):
+    """Frames each feature of frame ``t`` has been tracked for, counting frame ``t`` (capped)."""
+    held = np.ones(frames[t].ids.size, dtype=np.int64)
+    alive = np.ones(frames[t].ids.size, dtype=bool)
+    for k in range(1, WINDOW):
+        alive &= np.isin(frames[t].ids, frames[t - k].ids)
+        held += alive
+    return held
+
+
+@pytest.mark.parametrize('seed', [0, 2, 3])
+def test_young_tracks_take_the_motion_whose_subspace_is_nearest(seed):
+    # Tracks of 2 to 8 frames are too young for the window's fit; their own short trajectories
+    # still tell their motion. Judged where the fitted tracks are segmented right, with the
+    # labels matched to the truth on those tracks only.
+    frames = list(synthetic_stream(200, 40, (BodySpec(0.4),), death_rate=0.05, seed=seed))
+    _, results = run(frames)
     hits = total = 0
     for t in range(2 * WINDOW, len(frames)):
-        frame, result = frames[t], results[t]
-        young = ~np.isin(frame.ids, frames[t - 1].ids)
-        # Judge the vote where the tracked features themselves are segmented right.
-        if misclassification(result.labels[~young], frame.truth[~young]) > 0.05:
+        frame, result, age = frames[t], results[t], _ages(frames, t)
+        old, young = age >= WINDOW, (age >= 2) & (age < WINDOW - 1)
+        if misclassification(result.labels[old], frame.truth[old]) > 0.05:
             continue
-        mapping = match_labels(result.labels, frame.truth)
+        mapping = match_labels(result.labels[old], frame.truth[old])
         predicted = np.array([mapping.get(int(v), -2) for v in result.labels[young]])
         hits += int(np.sum(predicted == frame.truth[young]))
         total += int(young.sum())
-    # A vote of the true labels of the 5 nearest tracked features scores about 88% on such
-    # scenes (the object lies in front of the background, so its outline is ambiguous).
-    assert total >= 50
-    assert hits / total >= 0.7
+    # Every young track labelled background would score about 0.6 here (the object holds 40%
+    # of the features); the neighbour vote scored 0.52-0.70 on tracks of 2 frames.
+    assert total >= 500
+    assert hits / total >= 0.9
+
+
+def test_newborn_features_are_labelled_from_their_neighbours():
+    # One frame gives no motion to judge by: a newborn feature takes the vote of its image
+    # neighbours (test_vote.py checks the vote itself), never -1 while labelled ones exist.
+    frames = list(synthetic_stream(200, 30, (BodySpec(0.4),), death_rate=0.05, seed=0))
+    _, results = run(frames)
+    for t in range(2 * WINDOW, len(frames)):
+        newborn = _ages(frames, t) == 1
+        if np.any(results[t].labels[~newborn] >= 0):
+            assert np.all(results[t].labels[newborn] >= 0)
 
 
 def test_non_finite_features_get_minus_one_and_the_rest_are_labelled():
