@@ -133,14 +133,7 @@ def write_feature_bag(
         )
     if path.exists() or path.is_symlink():
         raise BagError(f'{path} exists already; delete it or choose another path')
-    parent = path.parent
-    if not parent.is_dir():
-        raise BagError(f'output folder does not exist: {parent}')
-
-    try:
-        staging = Path(tempfile.mkdtemp(prefix=f'.{path.name}.', suffix='.partial', dir=parent))
-    except OSError as err:
-        raise BagError(f'cannot write in {parent}: {err.strerror or err}') from err
+    staging = _staging_folder(path)
     try:
         # Written under the final name so the storage file inside is <name>.mcap / <name>.db3.
         staged = staging / path.name
@@ -289,13 +282,7 @@ def open_output_bag(
         raise BagError(f'{path} exists already')
     if exists and not is_bag(path):
         raise BagError(f'refusing to replace {path}: it is not a bag (no metadata.yaml)')
-    parent = path.parent
-    if not parent.is_dir():
-        raise BagError(f'output folder does not exist: {parent}')
-    try:
-        staging = Path(tempfile.mkdtemp(prefix=f'.{path.name}.', suffix='.partial', dir=parent))
-    except OSError as err:
-        raise BagError(f'cannot write in {parent}: {err.strerror or err}') from err
+    staging = _staging_folder(path)
     try:
         staged = staging / path.name  # so the storage file inside is <name>.mcap / <name>.db3
         writer = Writer(staged, version=9, storage_plugin=STORAGES[storage])
@@ -339,9 +326,7 @@ def write_ros1_bag(source: str | Path, path: str | Path) -> None:
         raise InputError(f'a ROS 1 bag file must end in .bag, got {path}')
     if path.exists() or path.is_symlink():
         raise BagError(f'{path} exists already; delete it or choose another path')
-    if not path.parent.is_dir():
-        raise BagError(f'output folder does not exist: {path.parent}')
-    staging = Path(tempfile.mkdtemp(prefix=f'.{path.name}.', suffix='.partial', dir=path.parent))
+    staging = _staging_folder(path)
     try:
         staged = staging / path.name
         try:
@@ -361,6 +346,17 @@ def is_bag(path: Path) -> bool:
     if path.is_dir() and not path.is_symlink():
         return (path / 'metadata.yaml').is_file()
     return path.suffix in ('.mcap', '.db3')
+
+
+def _staging_folder(path: Path) -> Path:
+    """A fresh hidden folder beside ``path`` to write a bag in before it is moved into place."""
+    parent = path.parent
+    if not parent.is_dir():
+        raise BagError(f'output folder does not exist: {parent}')
+    try:
+        return Path(tempfile.mkdtemp(prefix=f'.{path.name}.', suffix='.partial', dir=parent))
+    except OSError as err:
+        raise BagError(f'cannot write in {parent}: {err.strerror or err}') from err
 
 
 def _move_into_place(staged: Path, path: Path, staging: Path) -> None:
