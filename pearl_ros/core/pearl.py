@@ -232,7 +232,9 @@ def fit(
         residuals = np.concatenate([residuals, fresh_residuals])
         origin = np.concatenate([origin, np.full(fresh.shape[0], -1, dtype=np.int64)])
         bias = _init_bias(prior, origin, init_cost)
-        unary = setting.unary(residuals, sigmas) + bias
+        unary = setting.unary(residuals, sigmas)
+        if init_cost:
+            unary += bias
         problem = setting.problem(unary)  # holds unary itself: _refit's updates show through
         timings['propose'] += time.perf_counter() - start
 
@@ -259,7 +261,9 @@ def fit(
         params, sigmas, residuals = params[kept], sigmas[kept], residuals[kept]
         origin = origin[kept]
 
-    unary = setting.unary(residuals, sigmas) + _init_bias(prior, origin, init_cost)
+    unary = setting.unary(residuals, sigmas)
+    if init_cost:
+        unary += _init_bias(prior, origin, init_cost)
     final = energy(setting.problem(unary), labels)
     out = np.where(labels == OUTLIER, -1, labels - 1)
     return PearlResult(out, params, sigmas, final, tuple(history), iterations, timings,
@@ -364,8 +368,8 @@ def _init_bias(prior: np.ndarray, origin: np.ndarray, cost: float) -> np.ndarray
     """Rows ``(1 + K, N)`` of the init term: ``cost`` where a point with an init segment takes
     any label but that segment's model (the outlier label and new models included)."""
     rows = np.concatenate([[-1], origin])  # the outlier label is no segment's
-    if not cost:
-        return np.zeros((rows.size, prior.size))
+    if not cost:  # a read-only view of one zero: nothing allocated on the usual path
+        return np.broadcast_to(np.zeros(1), (rows.size, prior.size))
     return cost * ((prior[None, :] >= 0) & (rows[:, None] != prior[None, :]))
 
 

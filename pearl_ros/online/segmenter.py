@@ -316,12 +316,11 @@ def _nearest_subspace(coords: np.ndarray, age: np.ndarray, fitted: np.ndarray,
     # last frames are their trailing entries and bottom-right block (centring is per coordinate).
     span = int(age[fitted].min())
     means, scatters = [], []
-    for members, ok in zip(groups, offered):
-        if ok:
-            trajectories = _rows(coords[-span:, members])
-            mean = trajectories.mean(axis=0)
-            means.append(mean)
-            scatters.append((trajectories - mean).T @ (trajectories - mean))
+    for members in (g for g, ok in zip(groups, offered) if ok):
+        trajectories = _rows(coords[-span:, members])
+        mean = trajectories.mean(axis=0)
+        means.append(mean)
+        scatters.append((trajectories - mean).T @ (trajectories - mean))
     means_all, scatters_all = np.stack(means), np.stack(scatters)  # (K, D), (K, D, D)
     for frames in np.unique(age[young]):
         rows = np.flatnonzero(age[young] == frames)

@@ -22,7 +22,7 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from pearl_ros.core.errors import InputError
-from pearl_ros.core.models.base import check_tracks
+from pearl_ros.core.models.base import check_groups, check_tracks
 
 # px; the residual reported where a model cannot measure a point (zero gradient of the
 # constraint, a point mapped to infinity). Large enough to lose to the outlier label, finite so
@@ -261,13 +261,15 @@ class TwoViewModel:
     def fit_groups(self, data: np.ndarray, groups: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The normalised DLT of each row of ``groups`` ``(K, m)``, m >= min_samples, batched:
         the linear start of :meth:`refit` without its Levenberg-Marquardt refinement."""
+        rows = self._group_rows(data, groups)
+        return self._linear(rows, minimal=rows.shape[1] == self.min_samples)
+
+    def _group_rows(self, data: np.ndarray, groups: np.ndarray) -> np.ndarray:
+        """The data rows ``(K, m, 4)`` of validated ``groups`` ``(K, m)``."""
         data = check_data(data)
-        groups = np.asarray(groups)
-        if groups.ndim != 2 or groups.shape[1] < self.min_samples:
-            raise InputError(f'groups must have shape (K, m) with m >= {self.min_samples}, '
-                             f'got {groups.shape}')
+        groups = check_groups(groups, self.min_samples)
         check_inliers(groups.reshape(-1), data.shape[0])
-        return self._linear(data[groups], minimal=groups.shape[1] == self.min_samples)
+        return data[groups]
 
     def label_cost_weight(self, data: np.ndarray) -> float:
         """1: two views are one fixed amount of evidence."""

@@ -16,8 +16,7 @@ from typing import ClassVar
 
 import numpy as np
 
-from pearl_ros.core.errors import InputError
-from pearl_ros.core.models.base import check_tracks
+from pearl_ros.core.models.base import check_groups, check_tracks
 
 # A sample whose 3 difference vectors have a singular value below this share of the largest
 # spans less than 3 dimensions: its subspace is not determined.
@@ -52,11 +51,7 @@ class AffineSubspace:
     def fit_groups(self, data: np.ndarray, groups: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Principal subspace of each row of ``groups`` ``(K, m)``, m >= 4, batched: what
         :meth:`refit` finds for each group."""
-        groups = np.asarray(groups)
-        if groups.ndim != 2 or groups.shape[1] < self.min_samples:
-            raise InputError(f'groups must have shape (K, m) with m >= {self.min_samples}, '
-                             f'got {groups.shape}')
-        pts = data[groups]  # (K, m, D)
+        pts = data[check_groups(groups, self.min_samples)]  # (K, m, D)
         mean = pts.mean(axis=1)
         _, s, vt = np.linalg.svd(pts - mean[:, None, :], full_matrices=False)
         ok = s[:, self.dim - 1] > _RANK_TOL * np.maximum(s[:, 0], 1e-12)

@@ -86,3 +86,12 @@ def check_tracks(tracks: np.ndarray, min_frames: int = 1) -> np.ndarray:
     if not np.all(np.isfinite(tracks)):
         raise InputError('tracks must be finite (no NaN or inf coordinates)')
     return tracks
+
+
+def check_groups(groups: np.ndarray, min_samples: int) -> np.ndarray:
+    """Validate the shape of ``groups`` ``(K, m)``, m >= ``min_samples``, for ``fit_groups``."""
+    groups = np.asarray(groups)
+    if groups.ndim != 2 or groups.shape[1] < min_samples:
+        raise InputError(f'groups must have shape (K, m) with m >= {min_samples}, '
+                         f'got {groups.shape}')
+    return groups

@@ -59,9 +59,8 @@ class Fundamental(TwoViewModel):
         (which absorbs one parameter less), and the noise scale it gives serves PEaRL better
         (BENCHMARKS.md). The matrices are rank 3 in general: not hypotheses for PEaRL.
         """
-        _, ok = super().fit_groups(data, groups)  # validates, and flags degenerate groups
-        rows = data[np.asarray(groups)]
-        matrices, _ = self._linear(rows, minimal=False, rank_two=False)
+        rows = self._group_rows(data, groups)
+        matrices, ok = self._linear(rows, minimal=False, rank_two=False)
         for _ in range(self.reweight_steps):
             x1, x2 = homogeneous(rows[:, :, :2]), homogeneous(rows[:, :, 2:])
             lines2 = np.einsum('kij,kmj->kmi', matrices, x1)  # F x1
