@@ -27,11 +27,12 @@ def make_affine_scene(
 
     Body k is a cloud of 3-D points in its own image region; each frame it turns and shifts by
     its own random motion; an orthographic camera with a zoom projects it. Gaussian pixel noise.
+    The regions stay apart, as opaque objects' do (no body's features show through another).
     """
     rng = np.random.default_rng(seed)
     tracks, labels = [], []
     for k, size in enumerate(sizes):
-        centre = np.array([120.0 + 200.0 * k, 240.0 + 60.0 * (k % 2), 0.0])
+        centre = np.array([120.0 + 320.0 * k, 240.0 + 60.0 * (k % 2), 0.0])
         cloud = rng.uniform(-60, 60, (size, 3))
         rot, shift = np.eye(3), np.zeros(3)
         step_rot = _rotation(rng, 0.06)

@@ -70,10 +70,13 @@ def check_fields(config: Any) -> None:
 class PearlConfig:
     """Parameters of the PEaRL energy and its optimiser (Isack & Boykov, IJCV 2012).
 
-    The energy is ``E(L, f) = sum_p D_p(f_p) + lambda * sum_pq w_pq [f_p != f_q] + beta * |L(f)|``
+    The energy is ``E(L, f) = sum_p D_p(f_p) + sum_pq V_pq [f_p != f_q] + beta * |L(f)|``
     with ``D_p(l) = r_p(l)^2 / sigma_l^2 + 2 dof log(sigma_l / sigma_min)`` (residual ``r`` and
-    each model's noise level ``sigma_l`` in pixels) and a constant outlier cost. Cost units are
-    those of D: one unit is a residual of one noise level.
+    each model's noise level ``sigma_l`` in pixels), a constant outlier cost, and Delaunay
+    neighbours weighted by how alike they move: ``V_pq = lambda w_pq - mu (1 - w_pq)``, with
+    ``w_pq`` near 1 for neighbours on one local affine flow and near 0 for neighbours whose
+    flows differ by many noise levels (:mod:`pearl_ros.core.contrast`). Cost units are those of
+    D: one unit is a residual of one noise level.
     """
 
     model: str = spec('affine', 'motion model: affine | fundamental | homography',
@@ -83,8 +86,17 @@ class PearlConfig:
     min_noise: float = spec(0.05, 'px, floor of the estimated noise scale', low=1e-6, high=1e3)
     outlier_threshold: float = spec(
         10.0, 'noise levels; a larger residual makes a point an outlier', low=1e-3, high=1e6)
-    smoothness: float = spec(4.0, 'lambda, cost units per cut neighbour edge', low=0.0, high=1e6)
-    label_cost: float = spec(1000.0, 'beta, cost units per motion model in use',
+    smoothness: float = spec(
+        256.0, 'lambda, cost units per cut neighbour edge whose features move alike',
+        low=0.0, high=1e6)
+    separation: float = spec(
+        50.0, 'mu, cost units earned per cut neighbour edge whose features move apart',
+        low=0.0, high=1e6)
+    contrast: float = spec(
+        10.0, 'units (noise level or median miss) by which neighbours that move apart miss '
+        "each other's local subspace",
+        low=1e-3, high=1e6)
+    label_cost: float = spec(600.0, 'beta, cost units per motion model in use',
                              low=0.0, high=1e9)
     num_proposals: int = spec(200, 'fresh minimal samples per proposal round', low=1, high=100000)
     local_sampling: float = spec(

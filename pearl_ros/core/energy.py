@@ -21,7 +21,8 @@ class Problem:
     ----------
     unary : (L, N) float64, cost of giving point p label l (>= 0)
     edges : (E, 2) int, neighbour pairs
-    weights : (E,) float64, Potts weight of each pair, lambda included (>= 0)
+    weights : (E,) float64, Potts weight of each pair, lambda included; a negative weight
+        rewards cutting the pair (:func:`pearl_ros.core.expansion.expansion_move` truncates it)
     label_costs : (L,) float64, cost of each label in use (>= 0)
     """
 

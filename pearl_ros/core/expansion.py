@@ -15,7 +15,14 @@ from pearl_ros.core.energy import Problem
 
 
 def expansion_move(problem: Problem, labels: np.ndarray, alpha: int) -> np.ndarray:
-    """The labelling of least energy among those one alpha-expansion away from ``labels``."""
+    """The labelling of least energy among those one alpha-expansion away from ``labels``.
+
+    With a negative Potts weight (a reward for cutting the pair) some pair terms of the move are
+    not submodular and no graph cut represents them. They are truncated (Rother, Kumar,
+    Kolmogorov & Blake, "Digital tapestry", CVPR 2005): the move is then optimal for an upper
+    bound of the energy that is exact at ``labels``, so it is never worse than keeping
+    ``labels``.
+    """
     n = labels.size
     unary = problem.unary
     cost_keep = unary[labels, np.arange(n)]
@@ -26,13 +33,23 @@ def expansion_move(problem: Problem, labels: np.ndarray, alpha: int) -> np.ndarr
     # Pairwise Potts terms E(x_p, x_q) = A + (C - A) x_p + (D - C) x_q + (B + C - A - D)(1 - x_p) x_q
     # with A = E00, B = E01, C = E10, D = E11 = 0 (Kolmogorov & Zabih 2004).
     p, q = problem.edges[:, 0], problem.edges[:, 1]
-    a, b, w = labels[p], labels[q], problem.weights
+    w = problem.weights
+    # A negative weight makes the term non-submodular when both ends keep labels other than
+    # alpha (pair < 0 below). Such an edge is truncated: its pair term is left out, which
+    # overstates the cost of "p keeps, q switches" by -pair and leaves the three other cases
+    # exact. So that the case kept exact is the likelier one, p is made the end that gains
+    # more by switching.
+    risky = (w < 0) & (labels[p] != alpha) & (labels[q] != alpha)
+    gain = cost_keep - cost_switch
+    flip = risky & (gain[q] > gain[p])
+    p, q = np.where(flip, q, p), np.where(flip, p, q)
+    a, b = labels[p], labels[q]
     e00 = w * (a != b)
     e01 = w * (a != alpha)
     e10 = w * (b != alpha)
     _add_unary(src, snk, p, e10 - e00)
     _add_unary(src, snk, q, -e10)
-    pair = e01 + e10 - e00  # >= 0 for the Potts metric: the move is submodular
+    pair = e01 + e10 - e00  # >= 0 but on truncated edges: the move is submodular
 
     # Label costs. A used label l != alpha is paid unless all its points switch: an auxiliary
     # node y_l that can sit on the sink side ("l is gone", no cost) only if every point of l does.
@@ -43,7 +60,7 @@ def expansion_move(problem: Problem, labels: np.ndarray, alpha: int) -> np.ndarr
     paid = used[(used != alpha) & (costs[used] > 0)]
     new_alpha = costs[alpha] > 0 and not np.any(labels == alpha)
     num_aux = paid.size + int(new_alpha)
-    big = float(unary.sum() + w.sum() + costs.sum() + 1.0)  # stands for infinity
+    big = float(unary.sum() + np.abs(w).sum() + costs.sum() + 1.0)  # stands for infinity
 
     order = np.argsort(labels, kind='stable')
     starts = np.searchsorted(labels[order], paid)

@@ -16,6 +16,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from pearl_ros.core.config import PearlConfig
+from pearl_ros.core.contrast import edge_weights, patch_residuals
 from pearl_ros.core.energy import Problem, energy
 from pearl_ros.core.errors import InputError
 from pearl_ros.core.expansion import expansion_move
@@ -27,7 +28,7 @@ from pearl_ros.core.scale import local_scale
 OUTLIER = 0
 _NEIGHBOURS = 10  # image neighbours a local sample is drawn from
 _MAX_PASSES = 5  # expansion passes over the labels within one sweep
-_MAX_FAILED = 20  # unused labels rejected in a row that end a pass (the best by gain go first)
+_MAX_FAILED = 3  # unused labels rejected in a row that end a pass (the best by gain go first)
 _FLOOR = 0.5  # least model noise level, in units of the fresh-proposal level
 _SEGMENT_SAMPLES = 20  # minimal samples drawn inside each current segment per round
 _SPLIT_TRIES = 3  # expand-and-refit moves tried per iteration
@@ -94,13 +95,13 @@ def noise_level(residuals: np.ndarray, dof: float, floor: float, min_samples: in
 def sweep(problem: Problem, labels: np.ndarray) -> np.ndarray:
     """Alpha-expansions until no move lowers the energy; labels are tried best-first.
 
-    Every label in use is expanded each pass. An unused label is expanded only while its data
-    gain alone, sum_p max(0, D_p(f_p) - D_p(alpha)), exceeds its label cost: a cheap bound that
-    skips the many proposals that cannot pay for themselves, so a sweep costs a few moves,
-    not one per proposal.
+    Every label in use is expanded each pass. An unused label is expanded only while its gain
+    bound exceeds its label cost: its data gain, sum_p max(0, D_p(f_p) - D_p(alpha)), plus the
+    rewards (negative Potts weights) of the pairs it would split (:func:`_gain_bound`). A cheap
+    screen that skips the many proposals that cannot pay for themselves, so a sweep costs a few
+    moves, not one per proposal.
     """
     unary, costs = problem.unary, problem.label_costs
-    idx = np.arange(labels.size)
     current = energy(problem, labels)
     for _ in range(_MAX_PASSES):
         changed = False
@@ -111,8 +112,7 @@ def sweep(problem: Problem, labels: np.ndarray) -> np.ndarray:
             if gain is None:
                 used = np.zeros(unary.shape[0], dtype=bool)
                 used[labels] = True
-                gain = np.maximum(unary[labels, idx][None, :] - unary, 0.0).sum(axis=1)
-                gain = np.where(used, np.inf, gain - costs)
+                gain = np.where(used, np.inf, _gain_bound(problem, labels) - costs)
             gain[tried] = -np.inf
             alpha = int(np.argmax(gain))
             if not gain[alpha] > 0 or (failed >= _MAX_FAILED and not used[alpha]):
@@ -130,6 +130,26 @@ def sweep(problem: Problem, labels: np.ndarray) -> np.ndarray:
     return labels
 
 
+def _gain_bound(problem: Problem, labels: np.ndarray) -> np.ndarray:
+    """What expanding each label could gain, before its label cost, ``(L,)``.
+
+    The data gain sum_p max(0, D_p(f_p) - D_p(l)), plus the reward of every pair with a negative
+    weight that shares a label now and that l would split: one end fits l better, the other
+    does not. Without the rewards a tight model of one of two dependent motions, which one
+    loose model fits about as well, would never be tried, though splitting them pays.
+    """
+    unary = problem.unary
+    current = unary[labels, np.arange(labels.size)]
+    gain = np.maximum(current[None, :] - unary, 0.0).sum(axis=1)
+    p, q = problem.edges[:, 0], problem.edges[:, 1]
+    paying = (problem.weights < 0) & (labels[p] == labels[q])
+    if np.any(paying):
+        p, q = p[paying], q[paying]
+        better = unary < current[None, :]
+        gain += (better[:, p] != better[:, q]) @ -problem.weights[paying]
+    return gain
+
+
 @dataclass(frozen=True)
 class _Setting:
     """What stays fixed while PEaRL runs on one set of tracks."""
@@ -137,7 +157,7 @@ class _Setting:
     model: MotionModel
     data: np.ndarray  # (N, D) model data rows
     edges: np.ndarray  # (E, 2) Delaunay neighbours in the last frame
-    weights: np.ndarray  # (E,) lambda * w_pq
+    weights: np.ndarray  # (E,) signed Potts weights (contrast.edge_weights)
     neighbours: np.ndarray  # (N, k) image neighbours, for local samples
     scale: float  # px, noise level of a fresh proposal (estimated or given)
     floor: float  # px, least noise level a model may claim
@@ -388,6 +408,8 @@ def _setting(tracks: np.ndarray, config: PearlConfig, rng: np.random.Generator) 
     edges = delaunay_edges(anchor)
     neighbours = nearest_neighbours(anchor, _NEIGHBOURS)
     scale = config.noise or _estimate_scale(model, data, neighbours, config, rng)
+    # Neighbours are compared over every frame given, whatever the model family.
+    trajectories = data if model.name == 'affine' else get_model('affine').data(tracks)
     dof = model.residual_dof(data)
     floor = _FLOOR * scale
     # A point is an outlier when its residual to a model at the fresh noise level exceeds
@@ -396,7 +418,8 @@ def _setting(tracks: np.ndarray, config: PearlConfig, rng: np.random.Generator) 
                                     np.array([scale]), dof, floor)[0, 0])
     return _Setting(
         model=model, data=data, edges=edges,
-        weights=np.full(edges.shape[0], config.smoothness),
+        weights=edge_weights(patch_residuals(trajectories, edges, neighbours), scale,
+                             config.smoothness, config.separation, config.contrast),
         neighbours=neighbours, scale=scale, floor=floor, dof=dof,
         outlier_cost=outlier_cost,
         label_cost=config.label_cost * model.label_cost_weight(data))
@@ -516,8 +539,8 @@ def _expand_refit(setting: _Setting, problem: Problem, labels: np.ndarray, param
     current = energy(problem, labels)
     used = np.zeros(unary.shape[0], dtype=bool)
     used[labels] = True
-    # By data gain alone: the refit of the losers may pay for the label cost.
-    gain = np.maximum(unary[labels, idx][None, :] - unary, 0.0).sum(axis=1)
+    # Without the label cost: the refit of the losers may pay for it.
+    gain = _gain_bound(problem, labels)
     gain[used] = -np.inf
     # A useful split takes part of a segment, not all of it: a near copy of the segment's own
     # model has a large gain but leaves nothing to refit. Candidates are screened by the share

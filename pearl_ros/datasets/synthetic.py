@@ -3,9 +3,11 @@
 A tracker's view of rigid bodies under an affine (orthographic, zooming) camera. Body 0 is the
 background; every other body is an object with a rigid motion of its own, which may start
 moving mid-stream or stop (before it starts and after it stops it moves with the background, and
-its ground truth says so). Features die at random and new ones are born on random bodies, new
-features sometimes take ids that died a few frames before (as trackers reuse ids), and every
-frame lists its features in a new order.
+its ground truth says so). Objects are opaque boxes in front of the background: a background
+feature that an object's silhouette covers is lost, and none is born there. Features die at
+random and new ones are born on random bodies (where those bodies are now), new features
+sometimes take ids that died a few frames before (as trackers reuse ids), and every frame
+lists its features in a new order.
 """
 
 from __future__ import annotations
@@ -14,6 +16,7 @@ from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.spatial import Delaunay
 
 FRAME_NS = 33_333_333  # 30 Hz
 
@@ -89,15 +92,36 @@ def synthetic_stream(
     rots = [np.eye(3) for _ in range(bodies)]
     trans = [np.zeros(3) for _ in range(bodies)]
 
+    corners = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], float)
+
+    def occluded(body: np.ndarray, world: np.ndarray) -> np.ndarray:
+        """Background features inside an object's silhouette (the hull of its box's corners)."""
+        hidden = np.zeros(body.size, dtype=bool)
+        behind = body == 0
+        for k in range(1, bodies):
+            box = (corners * extents[k]) @ rots[k].T + centres[k] + trans[k]
+            hidden[behind] |= Delaunay(box[:, :2]).find_simplex(world[behind, :2]) >= 0
+        return hidden
+
     def new_points(count: int) -> tuple[np.ndarray, np.ndarray]:
-        """Bodies and first-pose coordinates of ``count`` features born now."""
+        """Bodies and first-pose coordinates of ``count`` features born now on the bodies as
+        they are now, where they show."""
         body = rng.choice(bodies, size=count, p=shares / shares.sum())
-        world = centres[body] + rng.uniform(-1.0, 1.0, (count, 3)) * extents[body]
-        origin = np.empty_like(world)
+        origin = centres[body] + rng.uniform(-1.0, 1.0, (count, 3)) * extents[body]
+        for _ in range(100):
+            hidden = occluded(body, positions(body, origin))
+            if not hidden.any():
+                break
+            redraw = rng.uniform(-1.0, 1.0, (int(hidden.sum()), 3))
+            origin[hidden] = centres[0] + redraw * extents[0]
+        return body, origin
+
+    def positions(body: np.ndarray, origin: np.ndarray) -> np.ndarray:
+        world = np.empty_like(origin)
         for k in range(bodies):
             on = body == k
-            origin[on] = (world[on] - centres[k] - trans[k]) @ rots[k] + centres[k]
-        return body, origin
+            world[on] = (origin[on] - centres[k]) @ rots[k].T + centres[k] + trans[k]
+        return world
 
     def step(k: int, source: int) -> None:
         """Move body k by body ``source``'s step: a turn about ``source``'s current centre,
@@ -118,7 +142,7 @@ def synthetic_stream(
             # Every body's move is computed from the current poses before any is changed.
             for k in reversed(range(bodies)):
                 step(k, k if moving[k] else 0)
-            lost = rng.random(ids.size) < death_rate
+            lost = (rng.random(ids.size) < death_rate) | occluded(body, positions(body, origin))
             dead += [(t, int(i)) for i in ids[lost]]
             reusable = [i for died, i in dead if t - died >= 3]
             fresh_ids = []
@@ -132,10 +156,7 @@ def synthetic_stream(
                     next_id += 1
             new_body, new_origin = new_points(int(lost.sum()))
             ids[lost], body[lost], origin[lost] = fresh_ids, new_body, new_origin
-        world = np.empty((ids.size, 3))
-        for k in range(bodies):
-            on = body == k
-            world[on] = (origin[on] - centres[k]) @ rots[k].T + centres[k] + trans[k]
+        world = positions(body, origin)
         uv = world[:, :2] + rng.normal(0, noise, (ids.size, 2))
         truth = np.where(moving[body], body, 0)
         order = rng.permutation(ids.size)

@@ -67,3 +67,55 @@ def test_smoothness_pulls_a_lone_point_to_its_neighbours_label():
     problem = Problem(unary, edges, np.array([2.0, 2.0]), np.zeros(2))
     moved = expansion_move(problem, np.array([1, 1, 1]), 0)
     assert np.array_equal(moved, [0, 0, 0])
+
+
+def signed_move(rng: np.random.Generator, may_reward) -> tuple[Problem, np.ndarray, int]:
+    """A random problem, labelling (point 0 labelled alpha) and alpha, where about half of the
+    edges that ``may_reward(touches)`` allows get a negative weight; ``touches`` marks the
+    edges with an end labelled alpha."""
+    n = int(rng.integers(3, 9))
+    base = random_problem(rng, n, int(rng.integers(2, 6)))
+    labels = rng.integers(0, base.unary.shape[0], n)
+    alpha = int(rng.integers(0, base.unary.shape[0]))
+    labels[0] = alpha
+    touches = (labels[base.edges[:, 0]] == alpha) | (labels[base.edges[:, 1]] == alpha)
+    reward = may_reward(touches) & (rng.random(touches.size) < 0.5)
+    return (Problem(base.unary, base.edges, np.where(reward, -base.weights, base.weights),
+                    base.label_costs), labels, alpha)
+
+
+@pytest.mark.parametrize('seed', range(20))
+def test_with_rewards_for_cut_pairs_a_move_never_raises_the_energy(seed):
+    # Negative weights reward cutting a pair; some of those terms cannot be cut exactly and are
+    # truncated, so the move is no longer always optimal, but it never does worse than standing.
+    rng = np.random.default_rng(100 + seed)
+    for _ in range(10):
+        problem, labels, alpha = signed_move(rng, lambda touches: np.ones(touches.size, bool))
+        moved = expansion_move(problem, labels, alpha)
+        assert set(np.flatnonzero(moved != labels)) <= set(np.flatnonzero(moved == alpha))
+        assert energy(problem, moved) <= energy(problem, labels) + 1e-9
+
+
+@pytest.mark.parametrize('seed', range(10))
+def test_with_rewards_on_pairs_that_touch_alpha_the_move_is_still_optimal(seed):
+    # A rewarded pair with an end already labelled alpha is exactly representable (modular):
+    # the move must then match brute force.
+    rng = np.random.default_rng(200 + seed)
+    for _ in range(10):
+        problem, labels, alpha = signed_move(rng, lambda touches: touches)
+        moved = expansion_move(problem, labels, alpha)
+        assert energy(problem, moved) == pytest.approx(best_move_energy(problem, labels, alpha),
+                                                       abs=1e-9)
+
+
+def test_a_reward_for_cutting_a_pair_lets_one_end_switch_alone():
+    # Both points slightly prefer to stay; alpha is free. Without a reward neither moves; a
+    # reward of 3 for cutting the pair pays for point 1 (the one that loses least) to switch.
+    unary = np.array([[1.0, 1.0], [2.0, 1.5]])
+    edges = np.array([[0, 1]])
+    costs = np.zeros(2)
+    labels = np.zeros(2, dtype=np.int64)
+    assert np.array_equal(expansion_move(Problem(unary, edges, np.array([0.0]), costs),
+                                         labels, 1), [0, 0])
+    assert np.array_equal(expansion_move(Problem(unary, edges, np.array([-3.0]), costs),
+                                         labels, 1), [0, 1])

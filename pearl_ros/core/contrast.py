@@ -1,0 +1,86 @@
+"""Do two image neighbours move alike? Each one's trajectory against the other's local subspace.
+
+The trajectories of the points of one rigid body under an affine camera lie in a 3-D affine
+subspace (Tomasi & Kanade 1992), and so do those of any patch of it, planar or not. Fitted to a
+point and a few image neighbours, that local subspace holds the trajectory of a neighbour on the
+same body within the noise, and misses one on another body by their relative motion, however
+slow or dependent the two motions are (local subspaces as in LSA, Yan & Pollefeys, ECCV 2006).
+With two frames, R^4, the local subspace is an affine epipolar constraint.
+
+The energy turns the miss into a contrast-sensitive Potts weight, as image segmentation weights
+its Potts term by colour differences (Boykov & Jolly, ICCV 2001), and into a small reward for
+cutting a pair that moves apart: the term that keeps one subspace from taking two dependent
+motions, which it fits about as well as two subspaces do.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+_PATCH = 8  # points of a local subspace fit: the point and its closest-moving neighbours
+_DIM = 3  # affine dimension of a rigid body's trajectories
+
+
+def patch_residuals(data: np.ndarray, edges: np.ndarray, neighbours: np.ndarray) -> np.ndarray:
+    """The miss of each edge's points from each other's local subspace, ``(E,)`` pixels.
+
+    Parameters
+    ----------
+    data : (N, 2F) float64, trajectories scaled by 1/sqrt(F) (``AffineSubspace.data``)
+    edges : (E, 2) int, neighbour pairs
+    neighbours : (N, k) int, each point's nearest image neighbours
+
+    Returns
+    -------
+    (E,) float64: for edge (p, q), the mean of the distance from q's trajectory to the 3-D
+    affine subspace fitted to p's patch and that of p to q's. A patch is the point and the
+    ``_PATCH - 1`` of its neighbours whose motion (trajectory less its mean position) is closest
+    to its own: near a boundary, the nearest points are often on the other body, most often
+    where that body's features are denser. Zero where patches hold at most 4 points.
+    """
+    if edges.shape[0] == 0:
+        return np.zeros(0)
+    n = data.shape[0]
+    if neighbours.shape[1] > _PATCH - 1:
+        rows = data.reshape(n, -1, 2)
+        moves = (rows - rows.mean(axis=1, keepdims=True)).reshape(n, -1)
+        gap = np.linalg.norm(moves[neighbours] - moves[:, None, :], axis=2)
+        closest = np.argsort(gap, axis=1, kind='stable')[:, : _PATCH - 1]
+        neighbours = np.take_along_axis(neighbours, closest, axis=1)
+    patch = np.concatenate([np.arange(n)[:, None], neighbours], axis=1)
+    points = data[patch]  # (N, k, 2F)
+    mean = points.mean(axis=1)
+    centred = points - mean[:, None, :]
+    # Principal directions from each patch's k x k Gram matrix (cheaper than an SVD of the
+    # patch): with G = C C^T = U S^2 U^T, the directions are S^-1 U^T C.
+    values, vectors = np.linalg.eigh(centred @ np.transpose(centred, (0, 2, 1)))
+    top = vectors[:, :, ::-1][:, :, :_DIM]  # (N, k, <=3), largest first
+    lengths = np.sqrt(np.maximum(values[:, ::-1][:, :_DIM], 0.0))
+    basis = np.einsum('nkj,nkd->njd', top, centred)
+    # A direction without spread (a patch of at most 3 points) spans nothing.
+    basis /= np.where(lengths > 1e-12, lengths, np.inf)[:, :, None]  # (N, <=3, 2F)
+
+    def miss(owner: np.ndarray, other: np.ndarray) -> np.ndarray:
+        offset = data[other] - mean[owner]
+        along = np.einsum('ejd,ed->ej', basis[owner], offset)
+        sq = np.einsum('ed,ed->e', offset, offset) - np.einsum('ej,ej->e', along, along)
+        return np.sqrt(np.maximum(sq, 0.0))
+
+    p, q = edges[:, 0], edges[:, 1]
+    return 0.5 * (miss(p, q) + miss(q, p))
+
+
+def edge_weights(residuals: np.ndarray, scale: float, smoothness: float, separation: float,
+                 contrast: float) -> np.ndarray:
+    """Signed Potts weights ``lambda w - mu (1 - w)``, ``w = exp(-(r / (contrast u))^2)``.
+
+    A cut edge between neighbours that move alike (``w`` near 1) costs ``smoothness``; one
+    between neighbours that miss each other's subspace by many units earns up to ``separation``
+    (a negative weight). The unit ``u`` is the noise level ``scale`` (px), or the median miss of
+    all edges where that is larger: most edges join points of one body, and their miss also
+    holds what the noise level leaves out (perspective, non-rigid parts, tracker drift).
+    ``residuals`` from :func:`patch_residuals`; ``contrast`` in units.
+    """
+    unit = max(scale, float(np.median(residuals))) if residuals.size else scale
+    alike = np.exp(-np.square(residuals / (contrast * unit)))
+    return smoothness * alike - separation * (1.0 - alike)

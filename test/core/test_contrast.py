@@ -1,0 +1,56 @@
+"""Local-subspace misses between image neighbours, and the signed Potts weights made of them."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from pearl_ros.core.contrast import edge_weights, patch_residuals
+from pearl_ros.core.models import get_model
+from pearl_ros.core.neighbourhood import delaunay_edges, nearest_neighbours
+
+
+def misses(tracks: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    edges = delaunay_edges(tracks[-1])
+    data = get_model('affine').data(tracks)
+    return edges, patch_residuals(data, edges, nearest_neighbours(tracks[-1], 10))
+
+
+@pytest.mark.parametrize('frames', [slice(None), [0, -1]])
+def test_neighbours_on_one_rigid_body_miss_nothing(affine_scene, frames):
+    # Noise-free trajectories of one rigid body lie in one 3-D affine subspace, and so do those
+    # of every patch of it (with two frames: one affine epipolar constraint).
+    tracks, _ = affine_scene(sizes=(150,), noise=0.0, seed=1)
+    _, miss = misses(tracks[frames])
+    assert miss.max() < 1e-4  # px: rounding of a difference of squares
+
+
+@pytest.mark.parametrize('frames', [slice(None), [0, -1]])
+def test_neighbours_on_two_bodies_miss_by_their_relative_motion(affine_scene, frames):
+    tracks, truth = affine_scene(sizes=(150, 150), noise=0.0, seed=2)
+    edges, miss = misses(tracks[frames])
+    cross = truth[edges[:, 0]] != truth[edges[:, 1]]
+    assert cross.sum() >= 5
+    assert miss[~cross].max() < 1e-4
+    assert miss[cross].min() > 0.5  # px per frame
+
+
+def test_few_points_and_no_edges_give_finite_misses():
+    tracks = np.random.default_rng(0).uniform(0, 100, (5, 4, 2))
+    edges, miss = misses(tracks)
+    assert edges.shape[0] > 0 and np.all(miss < 1e-6)  # 4 points: the subspace holds them all
+    assert patch_residuals(np.zeros((1, 10)), np.empty((0, 2), dtype=np.int64),
+                           np.empty((1, 0), dtype=np.int64)).shape == (0,)
+
+
+def test_weights_run_from_the_smoothness_to_minus_the_separation():
+    smooth, sep, contrast = 256.0, 50.0, 10.0
+    miss = np.array([0.0, 10.0, 1e6, 1.0, 1.0])  # median 1.0
+    weights = edge_weights(miss, 0.5, smooth, sep, contrast)
+    alike = np.exp(-1.0)  # the miss at contrast x unit, unit = max(0.5, median 1.0) = 1.0
+    assert weights[0] == pytest.approx(smooth)
+    assert weights[1] == pytest.approx(smooth * alike - sep * (1 - alike))
+    assert weights[2] == pytest.approx(-sep)
+    # A noise level above the median miss is the unit instead.
+    assert edge_weights(miss, 2.0, smooth, sep, contrast)[1] == pytest.approx(
+        smooth * np.exp(-0.25) - sep * (1 - np.exp(-0.25)))
