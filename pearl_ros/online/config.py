@@ -27,8 +27,9 @@ class OnlineConfig:
         low=1, high=100000)
     warm_rounds: int = spec(1, 'proposal rounds per warm-started frame', low=1, high=1000)
     propose_every: int = spec(
-        1, 'warm-started frames per batch of fresh proposals; the frames between only relabel '
-        'and refit the current motions (1 = fresh proposals every frame)', low=1, high=1000)
+        3, 'warm-started frames per batch of fresh proposals; the frames between only relabel '
+        'and refit the current motions, unless the energy per feature rose 5% (1 = fresh '
+        'proposals every frame)', low=1, high=1000)
     temporal_cost: float = spec(
         0.0, "cost units for a feature labelled other than its previous frame's motion (warm "
         'start only): a temporal Potts term against label flicker', low=0.0, high=1e6)
