@@ -26,7 +26,7 @@ from pearl_ros.core.proposals import mixed_samples, uniform_samples
 from pearl_ros.core.scale import local_scale
 
 OUTLIER = 0
-_NEIGHBOURS = 10  # image neighbours a local sample is drawn from
+_NEIGHBOURS = 10  # image neighbours a local sample, or a contrast patch, is drawn from
 _MAX_PASSES = 5  # expansion passes over the labels within one sweep
 _MAX_FAILED = 3  # unused labels rejected in a row that end a pass (the best by gain go first)
 _FLOOR = 0.5  # least model noise level, in units of the fresh-proposal level
