@@ -74,9 +74,10 @@ class PearlConfig:
     with ``D_p(l) = r_p(l)^2 / sigma_l^2 + 2 dof log(sigma_l / sigma_min)`` (residual ``r`` and
     each model's noise level ``sigma_l`` in pixels), a constant outlier cost, and Delaunay
     neighbours weighted by how alike they move: ``V_pq = lambda w_pq - mu (1 - w_pq)``, with
-    ``w_pq`` near 1 for neighbours on one local affine flow and near 0 for neighbours whose
-    flows differ by many noise levels (:mod:`pearl_ros.core.contrast`). Cost units are those of
-    D: one unit is a residual of one noise level.
+    ``w_pq`` near 1 for neighbours whose trajectories lie in each other's local 3-D affine
+    subspace and near 0 for neighbours that miss it by many units (the noise level, or the
+    median miss if larger; :mod:`pearl_ros.core.contrast`). Cost units are those of D: one unit
+    is a residual of one noise level.
     """
 
     model: str = spec('affine', 'motion model: affine | fundamental | homography',
