@@ -3,9 +3,10 @@
 ``fit`` composes the pure steps: :mod:`proposals` draws minimal samples, each becomes a model
 hypothesis (a label); :func:`sweep` runs alpha-expansions (:mod:`expansion`) over them; refit
 re-estimates every model in use from its points; both repeat while the energy
-(:mod:`energy`) goes down. Rounds then mix the surviving models with a fresh batch of samples,
-the thesis' remedy for too few samples (Isack, sec. 2.3.3). Label 0 inside the optimiser is the
-outlier label, with a constant cost and no label cost; the result reports it as -1.
+(:mod:`energy`) goes down, and merge moves then join neighbouring segments that one model
+explains. Rounds then mix the surviving models with a fresh batch of samples, the thesis'
+remedy for too few samples (Isack, sec. 2.3.3). Label 0 inside the optimiser is the outlier
+label, with a constant cost and no label cost; the result reports it as -1.
 """
 
 from __future__ import annotations
@@ -47,7 +48,8 @@ class PearlResult:
     params : (K, ...) float64, parameters of model k (layout set by the model)
     sigmas : (K,) float64, pixels, noise level of model k
     energy : float, final energy
-    energy_history : tuple of float, energy after every expand / re-estimate iteration
+    energy_history : tuple of float, energy after every expand / re-estimate iteration and
+        after the merges that end a round
     iterations : int, expand / re-estimate iterations run
     timings : dict of str to float, seconds per step
     scale : float, pixels, the residual scale the data costs were measured in
@@ -276,6 +278,13 @@ def fit(
             if not new < current - 1e-9:
                 break
             current = new
+        # Segments of one motion that no expansion joins are merged once the round settles.
+        start = time.perf_counter()
+        merged = _merge(setting, problem, labels, params, sigmas, residuals, unary, bias)
+        if merged is not labels:
+            labels = merged
+            history.append(energy(problem, labels))
+        timings['refit'] += time.perf_counter() - start
         # Only the models in use survive into the next round (and into the result).
         labels, kept = _compress(labels)
         params, sigmas, residuals = params[kept], sigmas[kept], residuals[kept]
@@ -585,6 +594,51 @@ def _expand_refit(setting: _Setting, problem: Problem, labels: np.ndarray, param
                 params[label - 1], sigmas[label - 1], residuals[label - 1] = fitted[:3]
                 unary[label] = fitted[3] + bias[label]
     return labels
+
+
+def _merge(setting: _Setting, problem: Problem, labels: np.ndarray, params: np.ndarray,
+           sigmas: np.ndarray, residuals: np.ndarray, unary: np.ndarray,
+           bias: np.ndarray) -> np.ndarray:
+    """Merge moves: two neighbouring segments become one, its model refitted to both.
+
+    An expansion cannot merge two segments of one motion when neither model fits the other's
+    points, and the model of the union is no proposal until the next round: one motion stays
+    cut in two though one model of both lowers the energy. Each pair of segments that share a
+    neighbour edge is tried, the larger keeping its label; the best merge that lowers the energy
+    is made, and the pairs are tried again. Arrays are updated in place, as in :func:`_refit`;
+    ``labels`` itself is returned when no merge pays.
+    """
+    idx = np.arange(labels.size)
+    p, q = problem.edges[:, 0], problem.edges[:, 1]
+    while True:
+        a, b = labels[p], labels[q]
+        touch = (a != b) & (a != OUTLIER) & (b != OUTLIER)
+        if not np.any(touch):
+            return labels
+        pairs, where = np.unique(np.sort(np.stack([a[touch], b[touch]], axis=1), axis=1),
+                                 axis=0, return_inverse=True)
+        # The weights of the edges each merge would no longer cut.
+        uncut = np.bincount(where.reshape(-1), weights=problem.weights[touch],
+                            minlength=pairs.shape[0])
+        size = np.bincount(labels, minlength=unary.shape[0])
+        current_costs = unary[labels, idx]
+        best, best_delta = None, -1e-9
+        for (x, y), freed in zip(pairs, uncut):
+            keep, drop = (x, y) if size[x] >= size[y] else (y, x)
+            members = np.flatnonzero((labels == keep) | (labels == drop))
+            fitted = _refit_one(setting, members, params[keep - 1])
+            if fitted is None:
+                continue
+            delta = (fitted[3][members].sum() + bias[keep, members].sum()
+                     - current_costs[members].sum() - freed - problem.label_costs[drop])
+            if delta < best_delta:
+                best, best_delta = (keep, drop, fitted), delta
+        if best is None:
+            return labels
+        keep, drop, fitted = best
+        labels = np.where(labels == drop, keep, labels)
+        params[keep - 1], sigmas[keep - 1], residuals[keep - 1] = fitted[:3]
+        unary[keep] = fitted[3] + bias[keep]
 
 
 def _compress(labels: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
