@@ -5,10 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from pearl_ros.core import pearl
 from pearl_ros.core.config import PearlConfig
 from pearl_ros.core.errors import InputError
 from pearl_ros.core.metrics import misclassification
-from pearl_ros.core import pearl
 from pearl_ros.core.pearl import evaluate_segmentation, fit
 
 
@@ -113,7 +113,6 @@ def test_config_rejects_out_of_range_values_naming_the_field(field, value):
 
 
 def test_evaluate_segmentation_gives_fit_its_own_energy_and_ranks_the_truth_first(affine_scene):
-
     tracks, truth = affine_scene(sizes=(200, 150), noise=0.5, seed=2)
     result = fit(tracks, rng=5)
     own, _ = evaluate_segmentation(tracks, result.labels, rng=5)
