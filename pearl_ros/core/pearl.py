@@ -457,39 +457,22 @@ def _estimate_scale(model: MotionModel, data: np.ndarray, neighbours: np.ndarray
 def _propose(setting: _Setting, labels: np.ndarray, params: np.ndarray, config: PearlConfig,
              rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Fresh hypotheses: a batch of minimal samples, plus, once models exist, samples drawn inside
-    each segment and the refit of every pair of segments merged (so that a motion split between
-    two labels has a single label that can take both halves)."""
+    each segment. (A motion split between two labels is joined by the merge moves that end each
+    round, :func:`_merge`.)"""
     model, data = setting.model, setting.data
     m = model.min_samples
     samples = [mixed_samples(data.shape[0], setting.neighbours, config.num_proposals, m,
                              config.local_sampling, rng)]
-    segments = [np.flatnonzero(labels == k) for k in range(1, params.shape[0] + 1)]
-    for members in segments:
-        samples.append(uniform_samples(members, _SEGMENT_SAMPLES, m, rng))
+    for k in range(1, params.shape[0] + 1):
+        samples.append(uniform_samples(np.flatnonzero(labels == k), _SEGMENT_SAMPLES, m, rng))
     fresh, ok = model.fit_minimal(data, np.concatenate(samples))
-    merged, merged_sigmas, merged_residuals = [], [], []
-    for i in range(len(segments)):
-        for j in range(i + 1, len(segments)):
-            both = np.concatenate([segments[i], segments[j]])
-            new = model.refit(data, both, params[i])
-            if new is None:
-                continue
-            residuals = model.residuals(data, new[None])[0]
-            sigma = noise_level(residuals[both], setting.dof, setting.floor, model.min_samples)
-            if sigma is not None:
-                merged.append(new)
-                merged_sigmas.append(sigma)
-                merged_residuals.append(residuals)
     # A fresh hypothesis does not know its noise level yet: it is offered at several, and
     # re-estimation tightens the one that is taken.
     fresh = fresh[ok]
-    fresh_residuals = model.residuals(data, fresh)
     levels = setting.scale * np.asarray(_PROPOSAL_LEVELS)
-    params = np.concatenate([np.repeat(fresh, levels.size, axis=0),
-                             np.asarray(merged).reshape((-1,) + fresh.shape[1:])])
-    sigmas = np.concatenate([np.tile(levels, fresh.shape[0]), merged_sigmas])
-    residuals = np.concatenate([np.repeat(fresh_residuals, levels.size, axis=0),
-                                np.asarray(merged_residuals).reshape(-1, data.shape[0])])
+    params = np.repeat(fresh, levels.size, axis=0)
+    sigmas = np.tile(levels, fresh.shape[0])
+    residuals = np.repeat(model.residuals(data, fresh), levels.size, axis=0)
     return params, sigmas, residuals
 
 
@@ -602,8 +585,8 @@ def _merge(setting: _Setting, problem: Problem, labels: np.ndarray, params: np.n
     """Merge moves: two neighbouring segments become one, its model refitted to both.
 
     An expansion cannot merge two segments of one motion when neither model fits the other's
-    points, and the model of the union is no proposal until the next round: one motion stays
-    cut in two though one model of both lowers the energy. Each pair of segments that share a
+    points, and the model of their union is not among the proposals: one motion stays cut in
+    two though one model of both lowers the energy. Each pair of segments that share a
     neighbour edge is tried, the larger keeping its label; the best merge that lowers the energy
     is made, and the pairs are tried again. Arrays are updated in place, as in :func:`_refit`;
     ``labels`` itself is returned when no merge pays.
