@@ -239,6 +239,12 @@ def test_merge_moves_join_two_halves_of_one_body(seed, monkeypatch):
     # ... which the merge move finds from the two halves, without fresh proposals ...
     merged = fit(tracks, rng=0, init=halves, propose=False)
     assert merged.num_models == 1 and np.all(merged.labels == 0)
+    # The merge's bookkeeping (in-place refits, freed pairs and label cost) agrees with the
+    # energy recomputed from scratch, and the energy went down.
+    history = np.array(merged.energy_history)
+    assert np.all(np.diff(history) <= 1e-6)
+    assert merged.energy == pytest.approx(history[-1], rel=1e-9)
+    assert merged.energy == pytest.approx(evaluate_segmentation(tracks, one, rng=0)[0], rel=1e-9)
     # ... and expansions alone do not: neither half's model fits the other half.
     monkeypatch.setattr(pearl, '_merge', lambda setting, problem, labels, *arrays: labels)
     assert fit(tracks, rng=0, init=halves, propose=False).num_models == 2
