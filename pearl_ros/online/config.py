@@ -31,7 +31,7 @@ class OnlineConfig:
         'and refit the current motions, unless the energy per feature rose 5% (1 = fresh '
         'proposals every frame)', low=1, high=1000)
     temporal_cost: float = spec(
-        0.0, "cost units for a feature labelled other than its previous frame's motion (warm "
+        2.0, "cost units for a feature labelled other than its previous frame's motion (warm "
         'start only): a temporal Potts term against label flicker', low=0.0, high=1e6)
     budget_ms: float = spec(
         20.0, 'ms, per-frame time budget of the optimiser; 0 = none. When it bites, labels '

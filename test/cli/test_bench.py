@@ -294,3 +294,20 @@ def test_oracle_fills_the_truth_columns(hopkins_root, tmp_path, capsys):
         row_ = next(csv.DictReader(handle))
     assert math.isfinite(float(row_['truth_energy'])) and float(row_['truth_energy']) > 0
     assert 0.0 <= float(row_['crossover_pct']) <= 100.0
+
+
+def test_latency_bench_prints_ordered_percentiles_and_errors_in_range(capsys):
+    assert main(['latency', '--frames', '12', '--features', '100', '--windows', '5']) == 0
+    rows = [line.split() for line in capsys.readouterr().out.splitlines()
+            if line.split()[:2] == ['100', '5']]
+    assert len(rows) == 1
+    features, window, frames, p50, p95, p99, top, peak, final, mean = rows[0]
+    assert (int(features), int(window), int(frames)) == (100, 5, 12)
+    assert 0 < float(p50) <= float(p95) <= float(p99) <= float(top)
+    assert float(peak) > 0
+    assert 0 <= float(final) <= 100 and 0 <= float(mean) <= 100
+
+
+def test_latency_bench_rejects_a_stream_no_longer_than_its_window(capsys):
+    assert main(['latency', '--frames', '5', '--features', '100', '--windows', '5']) == 1
+    assert 'frames > window' in capsys.readouterr().err
