@@ -18,6 +18,8 @@ from __future__ import annotations
 import numpy as np
 
 _PATCH = 8  # points of a local subspace fit: the point and its closest-moving neighbours
+_CORE = 4  # the point and its 3 closest-moving neighbours always make up the patch
+_STRANGER = 5.0  # a neighbour whose motion gap exceeds this many times the core's is left out
 _DIM = 3  # affine dimension of a rigid body's trajectories
 
 
@@ -36,21 +38,29 @@ def patch_residuals(data: np.ndarray, edges: np.ndarray, neighbours: np.ndarray)
     affine subspace fitted to p's patch and that of p to q's. A patch is the point and the
     ``_PATCH - 1`` of its neighbours whose motion (trajectory less its mean position) is closest
     to its own: near a boundary, the nearest points are often on the other body, most often
-    where that body's features are denser. Zero where patches hold at most 4 points.
+    where that body's features are denser. Of those, a neighbour whose motion gap is more than
+    ``_STRANGER`` times that of the point's third closest-moving neighbour is left out too:
+    next to a denser body, the patch of a point near the boundary would otherwise take several
+    of that body's points, and its subspace, spanning both motions, would hold the other side's
+    trajectories. Zero where patches hold at most 4 points.
     """
     if edges.shape[0] == 0:
         return np.zeros(0)
     n = data.shape[0]
-    if neighbours.shape[1] > _PATCH - 1:
-        rows = data.reshape(n, -1, 2)
-        moves = (rows - rows.mean(axis=1, keepdims=True)).reshape(n, -1)
-        gap = np.linalg.norm(moves[neighbours] - moves[:, None, :], axis=2)
-        closest = np.argsort(gap, axis=1, kind='stable')[:, : _PATCH - 1]
-        neighbours = np.take_along_axis(neighbours, closest, axis=1)
+    rows = data.reshape(n, -1, 2)
+    moves = (rows - rows.mean(axis=1, keepdims=True)).reshape(n, -1)
+    gap = np.linalg.norm(moves[neighbours] - moves[:, None, :], axis=2)
+    closest = np.argsort(gap, axis=1, kind='stable')[:, : _PATCH - 1]
+    neighbours = np.take_along_axis(neighbours, closest, axis=1)
+    gap = np.take_along_axis(gap, closest, axis=1)
+    member = np.ones((n, 1 + neighbours.shape[1]))  # 1 in the patch, 0 left out
+    if neighbours.shape[1] >= _CORE:
+        core = gap[:, _CORE - 2 : _CORE - 1]
+        member[:, _CORE:] = gap[:, _CORE - 1 :] <= _STRANGER * core
     patch = np.concatenate([np.arange(n)[:, None], neighbours], axis=1)
     points = data[patch]  # (N, k, 2F)
-    mean = points.mean(axis=1)
-    centred = points - mean[:, None, :]
+    mean = np.einsum('nk,nkd->nd', member, points) / member.sum(axis=1)[:, None]
+    centred = (points - mean[:, None, :]) * member[:, :, None]  # rows left out are zero
     # Principal directions from each patch's k x k Gram matrix (cheaper than an SVD of the
     # patch): with G = C C^T = U S^2 U^T, the directions are S^-1 U^T C.
     values, vectors = np.linalg.eigh(centred @ np.transpose(centred, (0, 2, 1)))

@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from pearl_ros.core import contrast
 from pearl_ros.core.contrast import edge_weights, patch_residuals
 from pearl_ros.core.models import get_model
 from pearl_ros.core.neighbourhood import delaunay_edges, nearest_neighbours
@@ -54,3 +55,42 @@ def test_weights_run_from_the_smoothness_to_minus_the_separation():
     # A noise level above the median miss is the unit instead.
     assert edge_weights(miss, 2.0, smooth, sep, contrast)[1] == pytest.approx(
         smooth * np.exp(-0.25) - sep * (1 - np.exp(-0.25)))
+
+
+def crowded_corner(frames: int = 8) -> tuple[np.ndarray, np.ndarray]:
+    """Point 0 of body A has only 3 body-A points among its 10 nearest: the other 7 belong to a
+    denser body B around it, moving otherwise. Point 4, far off, sits among body-A points only.
+    Noise-free orthographic views; returns tracks (F, N, 2) and the body (0 = A, 1 = B)."""
+    rng = np.random.default_rng(3)
+    corner = np.array([[0.0, 0.0], [4.0, 0.0], [0.0, 4.0], [4.0, 4.0]])
+    far = np.array([100.0, 0.0]) + rng.uniform(-6, 6, (11, 2))
+    crowd = rng.uniform(-2.5, 2.5, (7, 2)) + [2.0, 2.0]
+    image = np.vstack([corner, far, crowd])
+    depth = rng.uniform(-20, 20, image.shape[0])
+    body = np.repeat([0, 1], [15, 7])
+    tracks = []
+    for t in range(frames):
+        points = []
+        for k, (angle, shift) in enumerate([(0.03, [1.0, 0.5]), (-0.08, [-3.0, 2.0])]):
+            c, s = np.cos(angle * t), np.sin(angle * t)
+            on = body == k
+            world = np.column_stack([image[on], depth[on]])
+            turned = world @ np.array([[c, 0, s], [0, 1, 0], [-s, 0, c]]).T
+            points.append(turned[:, :2] + np.multiply(shift, t))
+        tracks.append(np.vstack(points))
+    return np.stack(tracks), body
+
+
+def test_a_denser_body_around_a_point_does_not_take_over_its_patch(monkeypatch):
+    tracks, body = crowded_corner()
+    data = get_model('affine').data(tracks)
+    neighbours = nearest_neighbours(tracks[-1], 10)
+    assert np.count_nonzero(body[neighbours[0]] == 0) == 3  # the scene is as described
+    edge = np.array([[0, 4]])  # two points of body A, far apart
+    # Point 0's patch is itself and its 3 body-A neighbours, whose subspace is body A's: the
+    # far point lies in it, as point 0 lies in the far point's.
+    assert patch_residuals(data, edge, neighbours)[0] < 1e-4
+    # Filled up to 8 points with the closest-moving of body B, the patch spans both motions and
+    # misses the far point of its own body.
+    monkeypatch.setattr(contrast, '_STRANGER', np.inf)
+    assert patch_residuals(data, edge, neighbours)[0] > 0.1
