@@ -105,10 +105,20 @@ class Player(Node):
         stamp = decode.stamp_ns(msg.header)
         self.answers[stamp] = Answer(stamp, ids, labels)
 
-    def wait_for_node(self, executor: Executor, timeout_s: float) -> bool:
-        """Spin until the node's subscription and its labels publisher are both matched."""
-        return spin_until(executor, lambda: self.publisher.get_subscription_count() > 0
-                          and self._sub.get_publisher_count() > 0, timeout_s)
+    def wait_for_node(self, executor: Executor, timeout_s: float, settle_s: float = 0.5
+                      ) -> bool:
+        """Spin until the node's subscription and its labels publisher are both matched, then
+        ``settle_s`` more.
+
+        A match seen from this side does not mean the node has matched this publisher yet; a
+        message sent in between is dropped by the node's best-effort reader (``make demo`` lost
+        its first frame about one run in ten). The settling time lets discovery finish.
+        """
+        matched = spin_until(executor, lambda: self.publisher.get_subscription_count() > 0
+                             and self._sub.get_publisher_count() > 0, timeout_s)
+        if matched:
+            spin_until(executor, lambda: False, settle_s)
+        return matched
 
     def play(self, executor: Executor, *, rate_hz: float = 0.0, timeout_s: float = 5.0,
              on_answer: Callable[[int, Any, Answer | None], None] | None = None
