@@ -438,6 +438,9 @@ def _build_parser() -> argparse.ArgumentParser:
     latency.add_argument('--frames', type=int, default=60, help='frames per stream')
     latency.add_argument('--features', type=int, nargs='+', default=[100, 300, 1000])
     latency.add_argument('--windows', type=int, nargs='+', default=[5, 10, 20])
+    latency.add_argument('--scene-seeds', type=int, nargs='+', default=[0], metavar='SEED',
+                         help='seeds of the synthetic scenes: one stream per seed, size and '
+                         'window (default 0)')
     latency.add_argument('--set', action='append', default=[], metavar='NAME=VALUE',
                          help='override a PearlConfig or OnlineConfig field (repeatable)')
     return parser
@@ -480,13 +483,17 @@ def _latency(args: argparse.Namespace) -> int:
     from pearl_ros.online.config import build_configs, parse_assignments
 
     config, online = build_configs(parse_assignments(args.set))
+    if min(args.scene_seeds) < 0:
+        raise InputError(f'--scene-seeds must be >= 0, got {min(args.scene_seeds)}')
     rows = []
     for features in args.features:
         for window in args.windows:
             if features < 10 or window < 2 or args.frames <= window:
                 raise InputError('need features >= 10, windows >= 2 and frames > window')
-            sys.stderr.write(f'\rlatency: {features} features, W={window}   ')
-            rows.append(latency_one(features, window, args.frames, config, online))
+            for scene in args.scene_seeds:
+                sys.stderr.write(f'\rlatency: {features} features, W={window}, scene {scene}   ')
+                rows.append(latency_one(features, window, args.frames, config, online,
+                                        seed=scene))
     sys.stderr.write('\n')
     print(format_latency(rows, f'Online PEaRL latency on synthetic streams ({args.frames} '
                                f'frames, births and deaths, budget {online.budget_ms:g} ms)'))

@@ -142,6 +142,7 @@ class LatencyRow:
     features: int
     window: int
     frames: int
+    scene: int  # seed of the synthetic scene (generator)
     latency_ms: dict[str, float]
     peak_mib: float
     final_pct: float
@@ -151,7 +152,8 @@ class LatencyRow:
 def latency_one(features: int, window: int, frames: int, config: PearlConfig,
                 online: OnlineConfig, seed: int = 0) -> LatencyRow:
     """Time a synthetic stream (an object that starts mid-stream, one that stops, births and
-    deaths) and measure the peak memory the segmenter allocates while it runs."""
+    deaths; ``seed`` draws the scene) and measure the peak memory the segmenter allocates while
+    it runs."""
     from pearl_ros.core.metrics import misclassification
     from pearl_ros.datasets.synthetic import BodySpec, synthetic_stream
     from pearl_ros.online.segmenter import OnlineSegmenter
@@ -177,18 +179,19 @@ def latency_one(features: int, window: int, frames: int, config: PearlConfig,
         result = segmenter.process(frame.stamp_ns, frame.ids, frame.uv)
         latencies.append(1e3 * (time.perf_counter() - start))
         errors.append(misclassification(result.labels, frame.truth))
-    return LatencyRow(features, window, frames, percentiles(latencies[window:]),
+    return LatencyRow(features, window, frames, seed, percentiles(latencies[window:]),
                       peak / 2**20, 100.0 * errors[-1],
                       100.0 * statistics.fmean(errors[window:] or errors))
 
 
 def format_latency(rows: Sequence[LatencyRow], title: str) -> str:
-    lines = [title, '', f'{"features":>8} {"W":>3} {"frames":>6} {"p50 ms":>7} {"p95 ms":>7} '
+    lines = [title, '', f'{"features":>8} {"W":>3} {"frames":>6} {"scene":>5} {"p50 ms":>7} '
+             f'{"p95 ms":>7} '
              f'{"p99 ms":>7} {"max ms":>7} {"peak MiB":>8} {"final err %":>11} '
              f'{"mean err %":>10}']
     for r in rows:
         lat: dict[str, Any] = r.latency_ms
-        lines.append(f'{r.features:>8} {r.window:>3} {r.frames:>6} {lat["p50"]:7.1f} '
+        lines.append(f'{r.features:>8} {r.window:>3} {r.frames:>6} {r.scene:>5} {lat["p50"]:7.1f} '
                      f'{lat["p95"]:7.1f} {lat["p99"]:7.1f} {lat["max"]:7.1f} {r.peak_mib:8.1f} '
                      f'{r.final_pct:11.2f} {r.mean_pct:10.2f}')
     lines.append('(latency and mean error over the frames after the window first fills)')
