@@ -186,8 +186,7 @@ def latency_one(features: int, window: int, frames: int, config: PearlConfig,
 
 def format_latency(rows: Sequence[LatencyRow], title: str) -> str:
     lines = [title, '', f'{"features":>8} {"W":>3} {"frames":>6} {"scene":>5} {"p50 ms":>7} '
-             f'{"p95 ms":>7} '
-             f'{"p99 ms":>7} {"max ms":>7} {"peak MiB":>8} {"final err %":>11} '
+             f'{"p95 ms":>7} {"p99 ms":>7} {"max ms":>7} {"peak MiB":>8} {"final err %":>11} '
              f'{"mean err %":>10}']
     for r in rows:
         lat: dict[str, Any] = r.latency_ms
