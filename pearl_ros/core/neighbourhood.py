@@ -1,9 +1,71 @@
-"""Neighbourhood systems over the features of one frame."""
+"""Neighbourhood systems over the features of one frame, and how alike neighbours move."""
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 from scipy.spatial import Delaunay, QhullError, cKDTree
+
+from pearl_ros.core.contrast import patch_residuals
+from pearl_ros.core.errors import InputError
+from pearl_ros.core.models import get_model
+
+NEIGHBOURS = 10  # image neighbours a local sample, or a contrast patch, is drawn from
+
+
+@dataclass(frozen=True)
+class Neighbourhood:
+    """The neighbour systems of one set of tracks, built by :func:`neighbourhood`.
+
+    Attributes
+    ----------
+    edges : (E, 2) int64, Delaunay edges (i < j) of the points in the last frame
+    neighbours : (N, k) int64, each point's nearest image neighbours in the last frame
+    misses : (E,) float64, pixels, how far each edge's ends miss each other's local subspace
+        over every frame (:func:`pearl_ros.core.contrast.patch_residuals`)
+    ids : (N,) int64 or None, the points' identities, which let a later call reuse the edges
+    """
+
+    edges: np.ndarray
+    neighbours: np.ndarray
+    misses: np.ndarray
+    ids: np.ndarray | None = None
+
+    def check(self, num_points: int) -> None:
+        """Raise InputError unless this neighbourhood is one of ``num_points`` points."""
+        if self.neighbours.shape[0] != num_points:
+            raise InputError(f'neighbourhood holds {self.neighbours.shape[0]} points, the tracks '
+                             f'{num_points}')
+        if self.misses.shape != (self.edges.shape[0],) or (
+                self.edges.size and not 0 <= self.edges.min() <= self.edges.max() < num_points):
+            raise InputError('neighbourhood edges and misses do not match')
+
+
+def neighbourhood(tracks: np.ndarray, ids: np.ndarray | None = None,
+                  previous: Neighbourhood | None = None) -> Neighbourhood:
+    """Delaunay edges, nearest neighbours and edge misses of ``tracks`` (F, N, 2).
+
+    With ``ids`` (N,) equal to those of a ``previous`` neighbourhood (the same features, in the
+    same order, as a tracker delivers them a frame later), its edges and neighbours are reused:
+    the features moved little since. The misses are always measured anew, over ``tracks``:
+    reusing misses a frame or two old cost the Hopkins155 stream half a point of error
+    (BENCHMARKS.md), and they are the larger part of the cost.
+    """
+    tracks = np.asarray(tracks, dtype=np.float64)
+    trajectories = get_model('affine').data(tracks)  # validates tracks
+    if ids is not None:
+        ids = np.asarray(ids, dtype=np.int64)
+        if ids.shape != (tracks.shape[1],):
+            raise InputError(f'ids must have shape ({tracks.shape[1]},), got {ids.shape}')
+    if previous is not None and previous.ids is not None and ids is not None \
+            and np.array_equal(previous.ids, ids):
+        edges, neighbours = previous.edges, previous.neighbours
+    else:
+        anchor = tracks[-1]
+        edges = delaunay_edges(anchor)
+        neighbours = nearest_neighbours(anchor, NEIGHBOURS)
+    return Neighbourhood(edges, neighbours, patch_residuals(trajectories, edges, neighbours), ids)
 
 
 def delaunay_edges(points: np.ndarray) -> np.ndarray:

@@ -17,17 +17,21 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from pearl_ros.core.config import PearlConfig
-from pearl_ros.core.contrast import edge_weights, patch_residuals
+from pearl_ros.core.contrast import edge_weights
 from pearl_ros.core.energy import Problem, energy
 from pearl_ros.core.errors import InputError
 from pearl_ros.core.expansion import expansion_move
 from pearl_ros.core.models import MotionModel, get_model
-from pearl_ros.core.neighbourhood import delaunay_edges, nearest_neighbours
+from pearl_ros.core.neighbourhood import (
+    NEIGHBOURS,
+    Neighbourhood,
+    nearest_neighbours,
+    neighbourhood,
+)
 from pearl_ros.core.proposals import mixed_samples, uniform_samples
 from pearl_ros.core.scale import local_scale
 
 OUTLIER = 0
-_NEIGHBOURS = 10  # image neighbours a local sample, or a contrast patch, is drawn from
 _MAX_PASSES = 5  # expansion passes over the labels within one sweep
 _MAX_FAILED = 3  # unused labels rejected in a row that end a pass (the best by gain go first)
 _FLOOR = 0.5  # least model noise level, in units of the fresh-proposal level
@@ -188,6 +192,7 @@ def fit(
     deadline: float | None = None,
     init_cost: float = 0.0,
     propose: bool = True,
+    graph: Neighbourhood | None = None,
 ) -> PearlResult:
     """Segment tracked points into rigid motions; the number of motions is found, not given.
 
@@ -212,6 +217,9 @@ def fit(
     propose : bool
         With ``init``, False skips the fresh proposals: the init models are only relabelled and
         re-estimated (a cheap warm step between proposal batches). Ignored without ``init``.
+    graph : Neighbourhood, optional
+        The neighbour systems of ``tracks`` (:func:`pearl_ros.core.neighbourhood.neighbourhood`),
+        when the caller already has them; built from ``tracks`` otherwise.
 
     Returns
     -------
@@ -221,7 +229,7 @@ def fit(
     rng = np.random.default_rng(rng)
     timings = {'setup': 0.0, 'propose': 0.0, 'expand': 0.0, 'refit': 0.0}
     start = time.perf_counter()
-    setting = _setting(tracks, config, rng)
+    setting = _setting(tracks, config, rng, graph)
     timings['setup'] = time.perf_counter() - start
     model, data = setting.model, setting.data
     n = data.shape[0]
@@ -406,19 +414,21 @@ def _past(deadline: float | None) -> bool:
     return deadline is not None and time.perf_counter() > deadline
 
 
-def _setting(tracks: np.ndarray, config: PearlConfig, rng: np.random.Generator) -> _Setting:
+def _setting(tracks: np.ndarray, config: PearlConfig, rng: np.random.Generator,
+             graph: Neighbourhood | None = None) -> _Setting:
     model = get_model(config.model)
     data = model.data(tracks)  # validates tracks
     n = data.shape[0]
     if n < model.min_samples + 1:
         raise InputError(f'tracks must hold at least {model.min_samples + 1} points for '
                          f'model {config.model!r}, got {n}')
-    anchor = np.asarray(tracks, dtype=np.float64)[-1]
-    edges = delaunay_edges(anchor)
-    neighbours = nearest_neighbours(anchor, _NEIGHBOURS)
-    scale = config.noise or _estimate_scale(model, data, neighbours, config, rng)
     # Neighbours are compared over every frame given, whatever the model family.
-    trajectories = data if model.name == 'affine' else get_model('affine').data(tracks)
+    if graph is None:
+        graph = neighbourhood(tracks)
+    else:
+        graph.check(n)
+    edges, neighbours = graph.edges, graph.neighbours
+    scale = config.noise or _estimate_scale(model, data, neighbours, config, rng)
     dof = model.residual_dof(data)
     floor = _FLOOR * scale
     # A point is an outlier when its residual to a model at the fresh noise level exceeds
@@ -427,7 +437,7 @@ def _setting(tracks: np.ndarray, config: PearlConfig, rng: np.random.Generator) 
                                     np.array([scale]), dof, floor)[0, 0])
     return _Setting(
         model=model, data=data, edges=edges,
-        weights=edge_weights(patch_residuals(trajectories, edges, neighbours), scale,
+        weights=edge_weights(graph.misses, scale,
                              config.smoothness, config.separation, config.contrast),
         neighbours=neighbours, scale=scale, floor=floor, dof=dof,
         outlier_cost=outlier_cost,
@@ -445,7 +455,7 @@ def noise_scale(tracks: np.ndarray, config: PearlConfig | None = None,
     model = get_model(config.model)
     data = model.data(tracks)
     anchor = np.asarray(tracks, dtype=np.float64)[-1]
-    neighbours = nearest_neighbours(anchor, _NEIGHBOURS)
+    neighbours = nearest_neighbours(anchor, NEIGHBOURS)
     return _estimate_scale(model, data, neighbours, config, np.random.default_rng(rng))
 
 

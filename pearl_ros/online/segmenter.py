@@ -28,6 +28,7 @@ from scipy.spatial import cKDTree
 from pearl_ros.core.config import PearlConfig
 from pearl_ros.core.errors import InputError
 from pearl_ros.core.models import get_model
+from pearl_ros.core.neighbourhood import Neighbourhood, neighbourhood
 from pearl_ros.core.pearl import fit, noise_scale
 from pearl_ros.online.config import OnlineConfig
 from pearl_ros.online.window import SlidingWindow
@@ -92,6 +93,7 @@ class OnlineSegmenter:
         self._scales: dict[str, tuple[float, int]] = {}  # model -> (px, fitted frames since)
         self._quiet = 0  # warm fits since the last one with fresh proposals
         self._energy_ref = 0.0  # energy per feature of that fit
+        self._graph: tuple[str, Neighbourhood] | None = None  # model, last fit's neighbourhood
 
     @property
     def frames_in_window(self) -> int:
@@ -103,6 +105,7 @@ class OnlineSegmenter:
         self._label_of_track = {}
         self._scales = {}
         self._quiet = 0
+        self._graph = None
 
     def reconfigure(self, config: PearlConfig | None = None,
                     online: OnlineConfig | None = None) -> None:
@@ -163,7 +166,7 @@ class OnlineSegmenter:
             prior = np.array([self._label_of_track.get(k, UNLABELLED) for k in keys[fitted]],
                              dtype=np.int64)
             warm = self.online.warm_start and bool(np.any(prior != UNLABELLED))
-            segments = self._fit(tracks, model_name, prior, warm, start)
+            segments = self._fit(tracks, keys[fitted], model_name, prior, warm, start)
             motion_labels[fitted] = self._identify(segments, prior)
             young = np.setdiff1d(np.arange(keys.size), fitted)
             tracked = young[age[young] >= _YOUNG_MIN_AGE] if model_name not in _TWO_VIEW \
@@ -187,9 +190,9 @@ class OnlineSegmenter:
             return self.config.model
         return self.online.two_view_model if span == 2 else self.config.model
 
-    def _fit(self, tracks: np.ndarray, model_name: str, prior: np.ndarray, warm: bool,
-             start: float) -> np.ndarray:
-        """Segment ``tracks``; returns 0..K-1 per track, -1 outliers."""
+    def _fit(self, tracks: np.ndarray, keys: np.ndarray, model_name: str, prior: np.ndarray,
+             warm: bool, start: float) -> np.ndarray:
+        """Segment ``tracks`` (of the tracks ``keys``); returns 0..K-1 per track, -1 outliers."""
         config = dataclasses.replace(self.config, model=model_name)
         if not config.noise:
             config = dataclasses.replace(config, noise=self._scale(tracks, config))
@@ -206,8 +209,17 @@ class OnlineSegmenter:
         # feature rose since the last proposals (a motion starting, say): then the next frame
         # proposes.
         propose = not warm or self._quiet + 1 >= self.online.propose_every
+        # The frames between proposals reuse the last frame's neighbour edges when the same
+        # features are fitted (Delaunay and k-d tree: 2 ms of a 480-feature frame); a frame
+        # with proposals builds them anew.
+        previous = None
+        if not propose and self._graph is not None and self._graph[0] == model_name:
+            previous = self._graph[1]
+        graph = neighbourhood(tracks, keys, previous)
+        self._graph = (model_name, graph)
         result = fit(tracks, config, self._rng, init=init, deadline=deadline,
-                     init_cost=self.online.temporal_cost if warm else 0.0, propose=propose)
+                     init_cost=self.online.temporal_cost if warm else 0.0, propose=propose,
+                     graph=graph)
         per_feature = result.energy / max(tracks.shape[1], 1)
         if propose:
             self._quiet, self._energy_ref = 0, per_feature

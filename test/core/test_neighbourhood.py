@@ -1,10 +1,19 @@
-"""Neighbourhoods: Delaunay edges and k nearest neighbours against brute force."""
+"""Neighbourhoods: Delaunay edges and k nearest neighbours against brute force, and their reuse."""
 
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
-from pearl_ros.core.neighbourhood import delaunay_edges, nearest_neighbours
+from pearl_ros.core.contrast import patch_residuals
+from pearl_ros.core.errors import InputError
+from pearl_ros.core.models import get_model
+from pearl_ros.core.neighbourhood import (
+    NEIGHBOURS,
+    delaunay_edges,
+    nearest_neighbours,
+    neighbourhood,
+)
 
 
 def test_nearest_neighbours_match_brute_force_and_never_include_the_point_itself():
@@ -42,3 +51,40 @@ def test_collinear_points_fall_back_to_a_chain():
     edges = delaunay_edges(points[::-1])
     assert len(edges) == 5
     assert set(edges.ravel()) == set(range(6))
+
+
+def test_neighbourhood_is_its_parts_over_the_last_frame():
+    rng = np.random.default_rng(2)
+    tracks = rng.uniform(0, 200, (6, 50, 2))
+    graph = neighbourhood(tracks)
+    edges = delaunay_edges(tracks[-1])
+    neighbours = nearest_neighbours(tracks[-1], NEIGHBOURS)
+    np.testing.assert_array_equal(graph.edges, edges)
+    np.testing.assert_array_equal(graph.neighbours, neighbours)
+    np.testing.assert_allclose(
+        graph.misses, patch_residuals(get_model('affine').data(tracks), edges, neighbours))
+
+
+def test_the_same_features_a_frame_later_keep_their_edges_but_get_new_misses():
+    rng = np.random.default_rng(3)
+    tracks = rng.uniform(0, 200, (7, 50, 2))
+    ids = np.arange(100, 150)
+    before = neighbourhood(tracks[:-1], ids)
+    later = tracks[1:] + rng.normal(0, 5.0, tracks[1:].shape)  # enough to move some edges
+    assert not np.array_equal(delaunay_edges(later[-1]), before.edges)
+    after = neighbourhood(later, ids, previous=before)
+    assert after.edges is before.edges and after.neighbours is before.neighbours
+    np.testing.assert_allclose(after.misses, patch_residuals(
+        get_model('affine').data(later), before.edges, before.neighbours))
+    # Other features (one id differs) get a neighbourhood of their own.
+    other = neighbourhood(later, np.r_[ids[:-1], 999], previous=before)
+    np.testing.assert_array_equal(other.edges, delaunay_edges(later[-1]))
+
+
+def test_a_neighbourhood_of_other_points_is_refused():
+    tracks = np.random.default_rng(4).uniform(0, 200, (5, 30, 2))
+    graph = neighbourhood(tracks)
+    with pytest.raises(InputError, match='neighbourhood'):
+        graph.check(29)
+    with pytest.raises(InputError, match='ids'):
+        neighbourhood(tracks, np.arange(29))

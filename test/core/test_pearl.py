@@ -9,6 +9,7 @@ from pearl_ros.core import pearl
 from pearl_ros.core.config import PearlConfig
 from pearl_ros.core.errors import InputError
 from pearl_ros.core.metrics import misclassification
+from pearl_ros.core.neighbourhood import neighbourhood
 from pearl_ros.core.pearl import evaluate_segmentation, fit
 
 
@@ -71,6 +72,17 @@ def test_fit_is_deterministic_for_a_seed(affine_scene):
     first, again = fit(tracks, rng=7), fit(tracks, rng=7)
     assert np.array_equal(first.labels, again.labels)
     assert first.energy == again.energy
+
+
+def test_a_given_neighbourhood_is_the_one_fit_builds(affine_scene):
+    tracks, _ = affine_scene(sizes=(80, 60), noise=1.0, seed=2)
+    given = fit(tracks, rng=7, graph=neighbourhood(tracks))
+    built = fit(tracks, rng=7)
+    assert np.array_equal(given.labels, built.labels)
+    assert given.energy == built.energy
+    # A neighbourhood of other points is refused, naming it.
+    with pytest.raises(InputError, match='neighbourhood'):
+        fit(tracks[:, :-1], rng=7, graph=neighbourhood(tracks))
 
 
 def test_gross_outliers_get_the_outlier_label(affine_scene):
