@@ -60,7 +60,10 @@ def expansion_move(problem: Problem, labels: np.ndarray, alpha: int) -> np.ndarr
     paid = used[(used != alpha) & (costs[used] > 0)]
     new_alpha = costs[alpha] > 0 and not np.any(labels == alpha)
     num_aux = paid.size + int(new_alpha)
-    big = float(unary.sum() + np.abs(w).sum() + costs.sum() + 1.0)  # stands for infinity
+    # Stands for infinity: more than every finite capacity of the graph together (summing
+    # only these, not every label's costs, keeps a move's cost independent of the labels).
+    big = float(src.sum() + snk.sum() + np.abs(pair).sum() + costs[paid].sum() + costs[alpha]
+                + 1.0)
 
     order = np.argsort(labels, kind='stable')
     starts = np.searchsorted(labels[order], paid)
