@@ -76,7 +76,7 @@ class PearlConfig:
     neighbours weighted by how alike they move: ``V_pq = lambda w_pq - mu (1 - w_pq)``, with
     ``w_pq`` near 1 for neighbours whose trajectories lie in each other's local 3-D affine
     subspace and near 0 for neighbours that miss it by many units (the noise level, or the
-    median miss if larger; :mod:`pearl_ros.core.contrast`). Cost units are those of D: one unit
+    ``unit_quantile`` quantile of the misses if larger; :mod:`pearl_ros.core.contrast`). Cost units are those of D: one unit
     is a residual of one noise level.
     """
 
@@ -94,9 +94,12 @@ class PearlConfig:
         50.0, 'mu, cost units earned per cut neighbour edge whose features move apart',
         low=0.0, high=1e6)
     contrast: float = spec(
-        10.0, 'units (noise level or median miss) by which neighbours that move apart miss '
-        "each other's local subspace",
+        10.0, 'units (noise level, or the unit_quantile miss if larger) by which neighbours '
+        "that move apart miss each other's local subspace",
         low=1e-3, high=1e6)
+    unit_quantile: float = spec(
+        0.6, "share of neighbour pairs whose miss is within the contrast unit (when the "
+        'noise level is below it)', low=0.0, high=1.0)
     label_cost: float = spec(600.0, 'beta, cost units per motion model in use',
                              low=0.0, high=1e9)
     num_proposals: int = spec(200, 'fresh minimal samples per proposal round', low=1, high=100000)

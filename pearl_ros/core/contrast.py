@@ -81,16 +81,16 @@ def patch_residuals(data: np.ndarray, edges: np.ndarray, neighbours: np.ndarray)
 
 
 def edge_weights(residuals: np.ndarray, scale: float, smoothness: float, separation: float,
-                 contrast: float) -> np.ndarray:
+                 contrast: float, quantile: float = 0.5) -> np.ndarray:
     """Signed Potts weights ``lambda w - mu (1 - w)``, ``w = exp(-(r / (contrast u))^2)``.
 
     A cut edge between neighbours that move alike (``w`` near 1) costs ``smoothness``; one
     between neighbours that miss each other's subspace by many units earns up to ``separation``
-    (a negative weight). The unit ``u`` is the noise level ``scale`` (px), or the median miss of
-    all edges where that is larger: most edges join points of one body, and their miss also
-    holds what the noise level leaves out (perspective, non-rigid parts, tracker drift).
-    ``residuals`` from :func:`patch_residuals`; ``contrast`` in units.
+    (a negative weight). The unit ``u`` is the noise level ``scale`` (px), or the ``quantile``
+    quantile of all edges' misses where that is larger: most edges join points of one body,
+    and their miss also holds what the noise level leaves out (perspective, non-rigid parts,
+    tracker drift). ``residuals`` from :func:`patch_residuals`; ``contrast`` in units.
     """
-    unit = max(scale, float(np.median(residuals))) if residuals.size else scale
+    unit = max(scale, float(np.quantile(residuals, quantile))) if residuals.size else scale
     alike = np.exp(-np.square(residuals / (contrast * unit)))
     return smoothness * alike - separation * (1.0 - alike)

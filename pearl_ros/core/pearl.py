@@ -437,8 +437,8 @@ def _setting(tracks: np.ndarray, config: PearlConfig, rng: np.random.Generator,
                                     np.array([scale]), dof, floor)[0, 0])
     return _Setting(
         model=model, data=data, edges=edges,
-        weights=edge_weights(graph.misses, scale,
-                             config.smoothness, config.separation, config.contrast),
+        weights=edge_weights(graph.misses, scale, config.smoothness, config.separation,
+                             config.contrast, config.unit_quantile),
         neighbours=neighbours, scale=scale, floor=floor, dof=dof,
         outlier_cost=outlier_cost,
         label_cost=config.label_cost * model.label_cost_weight(data))

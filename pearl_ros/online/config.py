@@ -26,6 +26,10 @@ class OnlineConfig:
         30, 'fresh minimal samples per warm-started frame (cold frames use num_proposals)',
         low=1, high=100000)
     warm_rounds: int = spec(1, 'proposal rounds per warm-started frame', low=1, high=1000)
+    warm_unit_quantile: float = spec(
+        0.5, 'unit_quantile of warm-started frames (cold frames use unit_quantile): a warm '
+        'fit keeps the merges it made unless rewards for cutting pairs undo them',
+        low=0.0, high=1.0)
     propose_every: int = spec(
         3, 'warm-started frames per batch of fresh proposals; the frames between only relabel '
         'and refit the current motions, unless the energy per feature rose 5% (1 = fresh '

@@ -199,7 +199,8 @@ class OnlineSegmenter:
         init = None
         if warm:
             config = dataclasses.replace(config, num_proposals=self.online.warm_proposals,
-                                         rounds=self.online.warm_rounds)
+                                         rounds=self.online.warm_rounds,
+                                         unit_quantile=self.online.warm_unit_quantile)
             _, init = np.unique(prior, return_inverse=True)
             init = init.reshape(-1) - int(np.any(prior == UNLABELLED))
         budget = self.online.budget_ms

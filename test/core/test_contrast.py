@@ -57,6 +57,16 @@ def test_weights_run_from_the_smoothness_to_minus_the_separation():
         smooth * np.exp(-0.25) - sep * (1 - np.exp(-0.25)))
 
 
+def test_the_unit_is_the_given_quantile_of_the_misses():
+    smooth, sep, contrast = 256.0, 50.0, 10.0
+    # Eleven misses: the 0.6 quantile is the 7th smallest (7.0), the median the 6th (6.0).
+    miss = np.array([70.0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10])
+    for quantile, unit in ((0.6, 7.0), (0.5, 6.0)):
+        alike = np.exp(-np.square(70.0 / (contrast * unit)))
+        weights = edge_weights(miss, 0.5, smooth, sep, contrast, quantile)
+        assert weights[0] == pytest.approx(smooth * alike - sep * (1 - alike))
+
+
 def crowded_corner(frames: int = 8) -> tuple[np.ndarray, np.ndarray]:
     """Point 0 of body A has only 3 body-A points among its 10 nearest: the other 7 belong to a
     denser body B around it, moving otherwise. Point 4, far off, sits among body-A points only.

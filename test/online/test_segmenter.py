@@ -7,6 +7,7 @@ import dataclasses
 import numpy as np
 import pytest
 
+from pearl_ros.core.config import PearlConfig
 from pearl_ros.core.errors import InputError
 from pearl_ros.core.metrics import match_labels, misclassification
 from pearl_ros.datasets.synthetic import BodySpec, synthetic_stream
@@ -223,6 +224,24 @@ def test_warm_and_cold_agree_with_the_truth_on_a_clear_scene():
                                                                              warm_start=warm)))
         assert misclassification(results[-1].labels, frames[-1].truth) < 0.1
         assert results[-1].warm == warm
+
+
+def test_warm_frames_measure_pairs_in_their_own_unit(monkeypatch):
+    # The segmenter hands fit a configuration: cold frames keep unit_quantile, warm ones take
+    # warm_unit_quantile. A spy records what fit was given and calls the real fit.
+    from pearl_ros.online import segmenter as module
+    given = []
+
+    def spy(tracks, config, *args, **kwargs):
+        given.append((kwargs.get('init') is not None, config.unit_quantile))
+        return real(tracks, config, *args, **kwargs)
+
+    real = module.fit
+    monkeypatch.setattr(module, 'fit', spy)
+    frames = list(synthetic_stream(120, 6, (BodySpec(0.4),), seed=13))
+    online = dataclasses.replace(UNTIMED, warm_unit_quantile=0.3)
+    run(frames, OnlineSegmenter(online=online))
+    assert {warm: q for warm, q in given} == {False: PearlConfig().unit_quantile, True: 0.3}
 
 
 def test_same_seed_same_frames_same_labels():
