@@ -87,7 +87,7 @@ def edge_weights(residuals: np.ndarray, scale: float, smoothness: float, separat
     A cut edge between neighbours that move alike (``w`` near 1) costs ``smoothness``; one
     between neighbours that miss each other's subspace by many units earns up to ``separation``
     (a negative weight). The unit ``u`` is the noise level ``scale`` (px), or the ``quantile``
-    quantile of all edges' misses where that is larger: most edges join points of one body,
+    quantile of all edges' misses (0.5: the median) where that is larger: most edges join points of one body,
     and their miss also holds what the noise level leaves out (perspective, non-rigid parts,
     tracker drift). ``residuals`` from :func:`patch_residuals`; ``contrast`` in units.
     """

@@ -512,8 +512,9 @@ def _refit(setting: _Setting, labels: np.ndarray, params: np.ndarray, sigmas: np
     """Re-estimate every model in use, and its noise level, from its points; keep a refit only
     if it lowers their cost.
 
-    ``params``, ``sigmas``, ``residuals`` and ``unary`` are updated in place, so the energy never goes up.
-    ``unary`` rows are data costs plus the fixed ``bias`` rows (:func:`_init_bias`).
+    ``params``, ``sigmas``, ``residuals`` and ``unary`` are updated in place, so the energy
+    never goes up. ``unary`` rows are data costs plus the fixed ``bias`` rows
+    (:func:`_init_bias`).
     """
     for label in np.unique(labels):
         if label == OUTLIER:
