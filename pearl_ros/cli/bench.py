@@ -153,6 +153,9 @@ def summarise(rows: Iterable[Row], wall_seconds: float | None = None) -> dict[st
         ``{'count', 'correct', 'share'}`` with share in percent of sequences where the number of
         models found equals the true number of motions (``None`` if empty). ``'seconds'``:
         ``{'mean', 'median', 'max', 'total'}`` over sequences (``None`` values if no rows).
+        ``'by_count'``: for ``'more'``, ``'fewer'`` and ``'equal'`` (motions found against
+        true), ``{'count', 'points'}``: the sequences of that kind and their share of the mean
+        error over all rows, in percentage points (the three add up to the mean).
         ``'count'``: number of rows. ``'wall_seconds'``: as given.
     """
     rows = list(rows)
@@ -182,6 +185,13 @@ def summarise(rows: Iterable[Row], wall_seconds: float | None = None) -> dict[st
                 'share': 100.0 * hits / len(cell) if cell else None,
             }
     seconds = [r.seconds for r in rows]
+    kinds = {'more': lambda r: r.motions_found > r.motions_true,
+             'fewer': lambda r: r.motions_found < r.motions_true,
+             'equal': lambda r: r.motions_found == r.motions_true}
+    by_count = {
+        kind: {'count': sum(1 for r in rows if test(r)),
+               'points': math.fsum(r.error_pct for r in rows if test(r)) / max(len(rows), 1)}
+        for kind, test in kinds.items()}
     return {
         'groups': groups,
         'categories': categories,
@@ -193,6 +203,7 @@ def summarise(rows: Iterable[Row], wall_seconds: float | None = None) -> dict[st
             'max': max(seconds) if seconds else None,
             'total': math.fsum(seconds),
         },
+        'by_count': by_count,
         'count': len(rows),
         'wall_seconds': wall_seconds,
     }
@@ -238,6 +249,12 @@ def format_table(summary: dict[str, Any], title: str | None = None) -> str:
             text = f'{_num(stats["share"], ".1f"):>6} {frac:>9}'
             cells.append(text.rjust(cell_width))
         lines.append(category.ljust(label_width) + ''.join(cells))
+    by_count = summary.get('by_count')
+    if by_count and summary['count']:
+        parts = [f'{words} {by_count[kind]["points"]:.2f} (n = {by_count[kind]["count"]})'
+                 for kind, words in (('more', 'more motions than true'),
+                                     ('fewer', 'fewer'), ('equal', 'as many'))]
+        lines.append('Points of the mean error, by motions found: ' + ', '.join(parts))
     lines.append('')
     secs = summary['seconds']
     lines.append(

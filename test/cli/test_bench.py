@@ -89,6 +89,16 @@ def test_summarise_counts_sequences_with_the_right_number_of_motions():
     assert correct['all']['all'] == {'count': 7, 'correct': 4, 'share': pytest.approx(400 / 7)}
 
 
+def test_summarise_splits_the_mean_error_by_the_motions_found():
+    by_count = summarise(ROWS)['by_count']
+    # More: b (3.0). Fewer: e (5.0), g (6.0). Equal: a, c, d, f (1 + 10 + 0 + 20).
+    assert by_count['more'] == {'count': 1, 'points': pytest.approx(3.0 / 7)}
+    assert by_count['fewer'] == {'count': 2, 'points': pytest.approx(11.0 / 7)}
+    assert by_count['equal'] == {'count': 4, 'points': pytest.approx(31.0 / 7)}
+    total = sum(kind['points'] for kind in by_count.values())
+    assert total == pytest.approx(summarise(ROWS)['error']['all']['all']['mean'])
+
+
 def test_summarise_reports_seconds_per_sequence():
     summary = summarise(ROWS, wall_seconds=9.0)
     assert summary['seconds']['mean'] == pytest.approx(12.5 / 7)
@@ -138,6 +148,8 @@ def test_format_table_lays_out_mean_and_median_like_table_2_2():
     assert found['all'] == ['60.0', '(3/5)', '50.0', '(1/2)', '57.1', '(4/7)']
     assert found['articulated'][:2] == ['-', '(0/0)']
     assert 'Seconds per sequence: mean 1.79, median 1.50, max 4.00 (7 sequences)' in text
+    assert ('Points of the mean error, by motions found: more motions than true 0.43 '
+            '(n = 1), fewer 1.57 (n = 2), as many 4.43 (n = 4)') in text
     assert 'Total wall time: 9.0 s' in text
 
 
