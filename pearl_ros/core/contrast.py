@@ -81,15 +81,16 @@ def patch_residuals(data: np.ndarray, edges: np.ndarray, neighbours: np.ndarray)
 
 
 def edge_weights(residuals: np.ndarray, scale: float, smoothness: float, separation: float,
-                 contrast: float, quantile: float = 0.5) -> np.ndarray:
+                 contrast: float, quantile: float) -> np.ndarray:
     """Signed Potts weights ``lambda w - mu (1 - w)``, ``w = exp(-(r / (contrast u))^2)``.
 
     A cut edge between neighbours that move alike (``w`` near 1) costs ``smoothness``; one
     between neighbours that miss each other's subspace by many units earns up to ``separation``
     (a negative weight). The unit ``u`` is the noise level ``scale`` (px), or the ``quantile``
-    quantile of all edges' misses (0.5: the median) where that is larger: most edges join points of one body,
-    and their miss also holds what the noise level leaves out (perspective, non-rigid parts,
-    tracker drift). ``residuals`` from :func:`patch_residuals`; ``contrast`` in units.
+    quantile of all edges' misses (0.5: the median) where that is larger: most edges join
+    points of one body, and their miss also holds what the noise level leaves out
+    (perspective, non-rigid parts, tracker drift). ``residuals`` from :func:`patch_residuals`;
+    ``contrast`` in units; ``quantile`` is ``PearlConfig.unit_quantile``.
     """
     unit = max(scale, float(np.quantile(residuals, quantile))) if residuals.size else scale
     alike = np.exp(-np.square(residuals / (contrast * unit)))

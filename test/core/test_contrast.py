@@ -47,13 +47,13 @@ def test_few_points_and_no_edges_give_finite_misses():
 def test_weights_run_from_the_smoothness_to_minus_the_separation():
     smooth, sep, contrast = 256.0, 50.0, 10.0
     miss = np.array([0.0, 10.0, 1e6, 1.0, 1.0])  # median 1.0
-    weights = edge_weights(miss, 0.5, smooth, sep, contrast)
+    weights = edge_weights(miss, 0.5, smooth, sep, contrast, 0.5)
     alike = np.exp(-1.0)  # the miss at contrast x unit, unit = max(0.5, median 1.0) = 1.0
     assert weights[0] == pytest.approx(smooth)
     assert weights[1] == pytest.approx(smooth * alike - sep * (1 - alike))
     assert weights[2] == pytest.approx(-sep)
     # A noise level above the median miss is the unit instead.
-    assert edge_weights(miss, 2.0, smooth, sep, contrast)[1] == pytest.approx(
+    assert edge_weights(miss, 2.0, smooth, sep, contrast, 0.5)[1] == pytest.approx(
         smooth * np.exp(-0.25) - sep * (1 - np.exp(-0.25)))
 
 
