@@ -49,13 +49,14 @@ class Fundamental(TwoViewModel):
     reweight_steps: int = 1
 
     def label_cost_weight(self, data: np.ndarray) -> float:
-        """0.75: a fundamental matrix is weaker evidence per point than a subspace over many frames.
+        """0.75: one epipolar constraint per point is weaker evidence than a long subspace.
 
-        Its Sampson residual measures one constraint per point (``residual_dof`` 1, against
-        about 2 for a 30-frame affine subspace), so a second motion gains less data cost for the
-        same misfit, and at the full label cost two-view fits merged motions: on Hopkins155 (first
-        and last frames, seeds 0-2) 0.75 takes the mean from 6.65% to 6.25% and the 3-motion
-        checkerboards from 13.85% to 11.68%; 0.5 and 0.83 do worse (BENCHMARKS.md).
+        The Sampson residual measures one constraint per point (``residual_dof`` 1, against
+        about 2 for a 30-frame affine subspace), so a second motion gains less data cost for
+        the same misfit, and at the full label cost two-view fits merged motions. On
+        Hopkins155 (first and last frames, seeds 0-2) 0.75 takes the mean from 6.65% to 6.25%
+        and the 3-motion checkerboards from 13.85% to 11.68%; 0.5, 0.67 and 0.83 do worse
+        (BENCHMARKS.md).
         """
         return 0.75
 
