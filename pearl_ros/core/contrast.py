@@ -21,6 +21,7 @@ _PATCH = 8  # points of a local subspace fit: the point and its closest-moving n
 _CORE = 4  # the point and its 3 closest-moving neighbours always make up the patch
 _STRANGER = 5.0  # a neighbour whose motion gap exceeds this many times the core's is left out
 _DIM = 3  # affine dimension of a rigid body's trajectories
+GROWTH_FROM = 4.0  # median edge lengths beyond which a long edge's unit grows (if asked)
 
 
 def patch_residuals(data: np.ndarray, edges: np.ndarray, neighbours: np.ndarray) -> np.ndarray:
@@ -81,7 +82,8 @@ def patch_residuals(data: np.ndarray, edges: np.ndarray, neighbours: np.ndarray)
 
 
 def edge_weights(residuals: np.ndarray, scale: float, smoothness: float, separation: float,
-                 contrast: float, quantile: float) -> np.ndarray:
+                 contrast: float, quantile: float, lengths: np.ndarray | None = None,
+                 growth: float = 1.0) -> np.ndarray:
     """Signed Potts weights ``lambda w - mu (1 - w)``, ``w = exp(-(r / (contrast u))^2)``.
 
     A cut edge between neighbours that move alike (``w`` near 1) costs ``smoothness``; one
@@ -91,7 +93,15 @@ def edge_weights(residuals: np.ndarray, scale: float, smoothness: float, separat
     points of one body, and their miss also holds what the noise level leaves out
     (perspective, non-rigid parts, tracker drift). ``residuals`` from :func:`patch_residuals`;
     ``contrast`` in units; ``quantile`` is ``PearlConfig.unit_quantile``.
+
+    With ``lengths`` (px, one per edge) and ``growth`` > 1, the unit of an edge longer than
+    ``GROWTH_FROM`` median edge lengths grows in proportion to its length, up to ``growth``
+    times (``PearlConfig.long_edge_growth``): a local subspace extrapolated far from its patch
+    misses a point of the same body by more the farther it reaches.
     """
     unit = max(scale, float(np.quantile(residuals, quantile))) if residuals.size else scale
+    if lengths is not None and growth > 1.0 and residuals.size:
+        reach = lengths / (GROWTH_FROM * max(float(np.median(lengths)), 1e-12))
+        unit = unit * np.clip(reach, 1.0, growth)
     alike = np.exp(-np.square(residuals / (contrast * unit)))
     return smoothness * alike - separation * (1.0 - alike)

@@ -435,10 +435,13 @@ def _setting(tracks: np.ndarray, config: PearlConfig, rng: np.random.Generator,
     # outlier_threshold of those levels.
     outlier_cost = float(data_costs(np.array([[config.outlier_threshold * scale]]),
                                     np.array([scale]), dof, floor)[0, 0])
+    last = np.asarray(tracks, dtype=np.float64)[-1]
+    lengths = np.linalg.norm(last[edges[:, 0]] - last[edges[:, 1]], axis=1)
     return _Setting(
         model=model, data=data, edges=edges,
         weights=edge_weights(graph.misses, scale, config.smoothness, config.separation,
-                             config.contrast, config.unit_quantile),
+                             config.contrast, config.unit_quantile, lengths,
+                             config.long_edge_growth),
         neighbours=neighbours, scale=scale, floor=floor, dof=dof,
         outlier_cost=outlier_cost,
         label_cost=config.label_cost * model.label_cost_weight(data))

@@ -104,3 +104,23 @@ def test_a_denser_body_around_a_point_does_not_take_over_its_patch(monkeypatch):
     # misses the far point of its own body.
     monkeypatch.setattr(contrast, '_STRANGER', np.inf)
     assert patch_residuals(data, edge, neighbours)[0] > 0.1
+
+
+def test_a_long_edge_measures_its_miss_in_a_grown_unit():
+    smooth, sep, contrast = 256.0, 50.0, 10.0
+    # Misses: median 1.0, the unit (noise level 0.5 below it). Lengths: median 10 px.
+    miss = np.array([20.0, 20.0, 20.0, 1, 1, 1, 1, 1, 1, 1, 1])
+    lengths = np.array([10.0, 80.0, 400.0, 10, 10, 10, 10, 10, 10, 10, 10])
+
+    def weight(unit: float) -> float:
+        alike = np.exp(-np.square(20.0 / (contrast * unit)))
+        return smooth * alike - sep * (1 - alike)
+
+    plain = edge_weights(miss, 0.5, smooth, sep, contrast, 0.5)
+    assert np.array_equal(edge_weights(miss, 0.5, smooth, sep, contrast, 0.5, lengths, 1.0), plain)
+    grown = edge_weights(miss, 0.5, smooth, sep, contrast, 0.5, lengths, 3.0)
+    # 1, 8 and 40 median lengths: the unit grows from 4 on, in proportion, at most 3 times.
+    assert grown[0] == pytest.approx(weight(1.0)) == pytest.approx(plain[0])
+    assert grown[1] == pytest.approx(weight(2.0))
+    assert grown[2] == pytest.approx(weight(3.0))
+    assert np.allclose(grown[3:], plain[3:])
