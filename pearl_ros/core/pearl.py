@@ -435,8 +435,10 @@ def _setting(tracks: np.ndarray, config: PearlConfig, rng: np.random.Generator,
     # outlier_threshold of those levels.
     outlier_cost = float(data_costs(np.array([[config.outlier_threshold * scale]]),
                                     np.array([scale]), dof, floor)[0, 0])
-    last = np.asarray(tracks, dtype=np.float64)[-1]
-    lengths = np.linalg.norm(last[edges[:, 0]] - last[edges[:, 1]], axis=1)
+    lengths = None  # of the edges in the last frame, px: only long_edge_growth uses them
+    if config.long_edge_growth > 1.0:
+        last = np.asarray(tracks, dtype=np.float64)[-1]
+        lengths = np.linalg.norm(last[edges[:, 0]] - last[edges[:, 1]], axis=1)
     return _Setting(
         model=model, data=data, edges=edges,
         weights=edge_weights(graph.misses, scale, config.smoothness, config.separation,

@@ -266,3 +266,18 @@ def test_merge_moves_leave_different_motions_apart(affine_scene):
     tracks, truth = affine_scene(sizes=(200, 150, 120), noise=0.5, seed=3)
     kept = fit(tracks, rng=0, init=truth, propose=False)
     assert kept.num_models == 3 and misclassification(kept.labels, truth) < 0.02
+
+
+def test_long_edge_growth_loosens_only_the_long_edges(affine_scene):
+    # Bodies 320 px apart: the Delaunay edges across the gaps are many median lengths long.
+    tracks, _ = affine_scene(sizes=(100, 70, 60), noise=0.5, seed=4)
+    plain = pearl._setting(tracks, PearlConfig(), np.random.default_rng(0))
+    grown = pearl._setting(tracks, PearlConfig(long_edge_growth=3.0), np.random.default_rng(0))
+    ends = tracks[-1][plain.edges]
+    lengths = np.linalg.norm(ends[:, 0] - ends[:, 1], axis=1)
+    long = lengths > 4.0 * np.median(lengths)
+    assert np.any(long) and np.array_equal(grown.edges, plain.edges)
+    assert np.array_equal(grown.weights[~long], plain.weights[~long])
+    # A larger unit reads the same miss as more alike: a higher weight, never a lower one.
+    assert np.all(grown.weights[long] >= plain.weights[long])
+    assert np.any(grown.weights[long] > plain.weights[long] + 1.0)
