@@ -118,7 +118,7 @@ def test_non_finite_tracks_raise_input_error(affine_scene):
 
 @pytest.mark.parametrize('field,value', [('noise', -1.0), ('label_cost', -2.0),
                                          ('model', 'sphere'), ('local_sampling', 1.5),
-                                         ('rounds', 0)])
+                                         ('rounds', 0), ('long_edge_growth', 0.5)])
 def test_config_rejects_out_of_range_values_naming_the_field(field, value):
     with pytest.raises(InputError, match=field):
         PearlConfig(**{field: value})
