@@ -48,9 +48,42 @@ def make_affine_scene(
     return tracks_arr, np.concatenate(labels)
 
 
+def make_gap_scene(same_body: bool, frames: int = 12) -> tuple[np.ndarray, np.ndarray]:
+    """Two 60-point clusters 300 px apart with nothing between; tracks (F, N, 2) and the
+    cluster of each point. Both clusters are one rigid body (one motion of the pair), or each
+    turns and shifts by its own motion, as the bodies of ``make_affine_scene`` do (0.06 rad a
+    frame about a random axis). Orthographic views, noise 0.3 px."""
+    rng = np.random.default_rng(7)
+    centres = np.array([[0.0, 0.0, 0.0], [300.0, 0.0, 0.0]])
+    clouds = [rng.uniform(-60, 60, (60, 3)) + centre for centre in centres]
+    motions = []
+    for _ in range(2):
+        axis = rng.normal(size=3)
+        axis /= np.linalg.norm(axis)
+        k = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
+        motions.append((np.eye(3) + np.sin(0.06) * k + (1 - np.cos(0.06)) * k @ k,
+                        rng.normal(0, 4.0, 3)))
+    if same_body:
+        motions[1] = motions[0]
+    tracks = []
+    for f in range(frames):
+        views = []
+        for cloud, (step, shift) in zip(clouds, motions):
+            rot = np.linalg.matrix_power(step, f)
+            views.append((cloud - [150.0, 0, 0]) @ rot.T + f * shift)
+        tracks.append(np.concatenate(views)[:, :2])
+    tracks = np.stack(tracks) + rng.normal(0, 0.3, (frames, 120, 2))
+    return tracks, np.repeat([0, 1], 60)
+
+
 @pytest.fixture
 def affine_scene():
     return make_affine_scene
+
+
+@pytest.fixture
+def gap_scene():
+    return make_gap_scene
 
 
 @pytest.fixture

@@ -101,9 +101,9 @@ class PearlConfig:
         0.6, "share of neighbour pairs whose miss is within the contrast unit (when the "
         'noise level is below it)', low=0.0, high=1.0)
     long_edge_growth: float = spec(
-        1.0, 'most times the unit of a neighbour pair\'s miss grows with the pair\'s length beyond '
-        '4 median edge lengths (1 = never; 3 measures better on Hopkins155 all frames and '
-        'worse on two frames and on gaps between bodies, BENCHMARKS.md)', low=1.0, high=100.0)
+        3.0, "most times the unit of a neighbour pair's miss grows with the pair's length beyond "
+        '6 median edge lengths, where the two ends move coherently (1 = never)',
+        low=1.0, high=100.0)
     label_cost: float = spec(600.0, 'beta, cost units per motion model in use',
                              low=0.0, high=1e9)
     num_proposals: int = spec(200, 'fresh minimal samples per proposal round', low=1, high=100000)

@@ -21,7 +21,11 @@ _PATCH = 8  # points of a local subspace fit: the point and its closest-moving n
 _CORE = 4  # the point and its 3 closest-moving neighbours always make up the patch
 _STRANGER = 5.0  # a neighbour whose motion gap exceeds this many times the core's is left out
 _DIM = 3  # affine dimension of a rigid body's trajectories
-GROWTH_FROM = 4.0  # median edge lengths beyond which a long edge's unit grows (if asked)
+GROWTH_FROM = 6.0  # median edge lengths beyond which a long edge's unit grows
+# A long edge's unit grows only if one 3-D affine subspace fits the two ends' neighbourhoods
+# together within this factor of their own fits (RMS residuals): within one body 90% of
+# Hopkins155's long edges do (median 1.4), between bodies half do not (median 2.7).
+COHERENCE = 2.0
 
 
 def patch_residuals(data: np.ndarray, edges: np.ndarray, neighbours: np.ndarray) -> np.ndarray:
@@ -82,8 +86,8 @@ def patch_residuals(data: np.ndarray, edges: np.ndarray, neighbours: np.ndarray)
 
 
 def edge_weights(residuals: np.ndarray, scale: float, smoothness: float, separation: float,
-                 contrast: float, quantile: float, lengths: np.ndarray | None = None,
-                 growth: float = 1.0) -> np.ndarray:
+                 contrast: float, quantile: float, stretch: np.ndarray | None = None
+                 ) -> np.ndarray:
     """Signed Potts weights ``lambda w - mu (1 - w)``, ``w = exp(-(r / (contrast u))^2)``.
 
     A cut edge between neighbours that move alike (``w`` near 1) costs ``smoothness``; one
@@ -92,16 +96,64 @@ def edge_weights(residuals: np.ndarray, scale: float, smoothness: float, separat
     quantile of all edges' misses (0.5: the median) where that is larger: most edges join
     points of one body, and their miss also holds what the noise level leaves out
     (perspective, non-rigid parts, tracker drift). ``residuals`` from :func:`patch_residuals`;
-    ``contrast`` in units; ``quantile`` is ``PearlConfig.unit_quantile``.
-
-    With ``lengths`` (px, one per edge) and ``growth`` > 1, the unit of an edge longer than
-    ``GROWTH_FROM`` median edge lengths grows in proportion to its length, up to ``growth``
-    times (``PearlConfig.long_edge_growth``): a local subspace extrapolated far from its patch
-    misses a point of the same body by more the farther it reaches.
+    ``contrast`` in units; ``quantile`` is ``PearlConfig.unit_quantile``; ``stretch`` (E,) >= 1
+    multiplies each edge's unit (:func:`long_edge_stretch`).
     """
     unit = max(scale, float(np.quantile(residuals, quantile))) if residuals.size else scale
-    if lengths is not None and growth > 1.0 and residuals.size:
-        reach = lengths / (GROWTH_FROM * max(float(np.median(lengths)), 1e-12))
-        unit = unit * np.clip(reach, 1.0, growth)
+    if stretch is not None:
+        unit = unit * stretch
     alike = np.exp(-np.square(residuals / (contrast * unit)))
     return smoothness * alike - separation * (1.0 - alike)
+
+
+def long_edge_stretch(tracks: np.ndarray, edges: np.ndarray, neighbours: np.ndarray,
+                      growth: float) -> np.ndarray:
+    """How much each edge's unit grows with its length, ``(E,)`` >= 1.
+
+    A local subspace extrapolated far from its patch misses a point of the same body by more
+    the farther it reaches (perspective across a featureless band: on Hopkins155 the misses of
+    long edges within one body grow about in proportion to their length). An edge longer than
+    ``GROWTH_FROM`` median edge lengths (in the last frame) has its unit grown in proportion
+    to its length, up to ``growth`` times (``PearlConfig.long_edge_growth``), but only if its
+    two ends' neighbourhoods (each point and its ``neighbours``) are coherent: one 3-D affine
+    subspace fits both together within ``COHERENCE`` times their own fits. Two bodies far
+    apart on a featureless background are not, and keep the plain unit (ungated, such edges
+    tied three independent bodies into one model).
+
+    Parameters
+    ----------
+    tracks : (F, N, 2) float64, pixels
+    edges : (E, 2) int
+    neighbours : (N, k) int, each point's nearest image neighbours
+    growth : float >= 1
+
+    Returns
+    -------
+    (E,) float64
+    """
+    stretch = np.ones(edges.shape[0])
+    if growth <= 1.0 or edges.shape[0] == 0:
+        return stretch
+    tracks = np.asarray(tracks, dtype=np.float64)
+    last = tracks[-1]
+    lengths = np.linalg.norm(last[edges[:, 0]] - last[edges[:, 1]], axis=1)
+    reach = np.clip(lengths / (GROWTH_FROM * max(float(np.median(lengths)), 1e-12)), 1.0, growth)
+    long = np.flatnonzero(reach > 1.0)
+    if long.size == 0:
+        return stretch
+    rows = np.transpose(tracks, (1, 0, 2)).reshape(tracks.shape[1], -1)
+    ends = [np.concatenate([edges[long, i : i + 1], neighbours[edges[long, i]]], axis=1)
+            for i in (0, 1)]
+    own = np.sqrt(0.5 * (_spread(rows, ends[0]) ** 2 + _spread(rows, ends[1]) ** 2))
+    both = _spread(rows, np.concatenate(ends, axis=1))
+    coherent = both <= COHERENCE * np.maximum(own, 1e-12)
+    stretch[long[coherent]] = reach[long[coherent]]
+    return stretch
+
+
+def _spread(rows: np.ndarray, groups: np.ndarray) -> np.ndarray:
+    """RMS residual of each group of ``rows`` to its own best 3-D affine subspace, ``(G,)``."""
+    points = rows[groups]
+    centred = points - points.mean(axis=1, keepdims=True)
+    values = np.linalg.svd(centred, compute_uv=False)
+    return np.sqrt(np.sum(np.square(values[:, _DIM:]), axis=1) / groups.shape[1])

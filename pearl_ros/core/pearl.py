@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from pearl_ros.core.config import PearlConfig
-from pearl_ros.core.contrast import edge_weights
+from pearl_ros.core.contrast import edge_weights, long_edge_stretch
 from pearl_ros.core.energy import Problem, energy
 from pearl_ros.core.errors import InputError
 from pearl_ros.core.expansion import expansion_move
@@ -435,15 +435,11 @@ def _setting(tracks: np.ndarray, config: PearlConfig, rng: np.random.Generator,
     # outlier_threshold of those levels.
     outlier_cost = float(data_costs(np.array([[config.outlier_threshold * scale]]),
                                     np.array([scale]), dof, floor)[0, 0])
-    lengths = None  # of the edges in the last frame, px: only long_edge_growth uses them
-    if config.long_edge_growth > 1.0:
-        last = np.asarray(tracks, dtype=np.float64)[-1]
-        lengths = np.linalg.norm(last[edges[:, 0]] - last[edges[:, 1]], axis=1)
+    stretch = long_edge_stretch(tracks, edges, neighbours, config.long_edge_growth)
     return _Setting(
         model=model, data=data, edges=edges,
         weights=edge_weights(graph.misses, scale, config.smoothness, config.separation,
-                             config.contrast, config.unit_quantile, lengths,
-                             config.long_edge_growth),
+                             config.contrast, config.unit_quantile, stretch),
         neighbours=neighbours, scale=scale, floor=floor, dof=dof,
         outlier_cost=outlier_cost,
         label_cost=config.label_cost * model.label_cost_weight(data))

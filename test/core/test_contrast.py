@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from pearl_ros.core import contrast
-from pearl_ros.core.contrast import edge_weights, patch_residuals
+from pearl_ros.core.contrast import edge_weights, long_edge_stretch, patch_residuals
 from pearl_ros.core.models import get_model
 from pearl_ros.core.neighbourhood import delaunay_edges, nearest_neighbours
 
@@ -106,21 +106,36 @@ def test_a_denser_body_around_a_point_does_not_take_over_its_patch(monkeypatch):
     assert patch_residuals(data, edge, neighbours)[0] > 0.1
 
 
-def test_a_long_edge_measures_its_miss_in_a_grown_unit():
+def test_a_stretched_edge_measures_its_miss_in_a_larger_unit():
     smooth, sep, contrast = 256.0, 50.0, 10.0
-    # Misses: median 1.0, the unit (noise level 0.5 below it). Lengths: median 10 px.
-    miss = np.array([20.0, 20.0, 20.0, 1, 1, 1, 1, 1, 1, 1, 1])
-    lengths = np.array([10.0, 80.0, 400.0, 10, 10, 10, 10, 10, 10, 10, 10])
+    miss = np.array([20.0, 20.0, 20.0, 1, 1, 1, 1, 1, 1, 1, 1])  # median 1.0: the unit
 
     def weight(unit: float) -> float:
         alike = np.exp(-np.square(20.0 / (contrast * unit)))
         return smooth * alike - sep * (1 - alike)
 
     plain = edge_weights(miss, 0.5, smooth, sep, contrast, 0.5)
-    assert np.array_equal(edge_weights(miss, 0.5, smooth, sep, contrast, 0.5, lengths, 1.0), plain)
-    grown = edge_weights(miss, 0.5, smooth, sep, contrast, 0.5, lengths, 3.0)
-    # 1, 8 and 40 median lengths: the unit grows from 4 on, in proportion, at most 3 times.
+    stretch = np.array([1.0, 2.0, 3.0, 1, 1, 1, 1, 1, 1, 1, 1])
+    grown = edge_weights(miss, 0.5, smooth, sep, contrast, 0.5, stretch)
     assert grown[0] == pytest.approx(weight(1.0)) == pytest.approx(plain[0])
     assert grown[1] == pytest.approx(weight(2.0))
     assert grown[2] == pytest.approx(weight(3.0))
     assert np.allclose(grown[3:], plain[3:])
+
+
+@pytest.mark.parametrize('same_body', [True, False])
+def test_long_edges_across_a_gap_stretch_only_within_one_body(gap_scene, same_body):
+    tracks, cluster = gap_scene(same_body)
+    edges = delaunay_edges(tracks[-1])
+    neighbours = nearest_neighbours(tracks[-1], 10)
+    across = cluster[edges[:, 0]] != cluster[edges[:, 1]]
+    assert np.any(across)
+    stretch = long_edge_stretch(tracks, edges, neighbours, 3.0)
+    assert np.all(stretch[~across] == 1.0)  # short edges inside the clusters
+    if same_body:
+        assert np.all(stretch[across] > 1.0) and np.all(stretch[across] <= 3.0)
+    else:
+        # Two small neighbourhoods of different motions can still share a 3-D subspace nearly
+        # as well as each fits its own (here one edge of nine, at 1.98 times): most do not.
+        assert np.mean(stretch[across] > 1.0) <= 0.2
+    assert np.all(long_edge_stretch(tracks, edges, neighbours, 1.0) == 1.0)
