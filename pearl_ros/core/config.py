@@ -76,7 +76,8 @@ class PearlConfig:
     neighbours weighted by how alike they move: ``V_pq = lambda w_pq - mu (1 - w_pq)``, with
     ``w_pq`` near 1 for neighbours whose trajectories lie in each other's local 3-D affine
     subspace and near 0 for neighbours that miss it by many units (the noise level, or the
-    ``unit_quantile`` quantile of the misses if larger; :mod:`pearl_ros.core.contrast`). Cost
+    ``unit_quantile`` quantile of the misses if larger, grown on long coherent edges by up to
+    ``long_edge_growth``; :mod:`pearl_ros.core.contrast`). Cost
     units are those of D: one unit is a residual of one noise level.
     """
 
