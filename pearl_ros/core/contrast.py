@@ -10,7 +10,10 @@ With two frames, R^4, the local subspace is an affine epipolar constraint.
 The energy turns the miss into a contrast-sensitive Potts weight, as image segmentation weights
 its Potts term by colour differences (Boykov & Jolly, ICCV 2001), and into a small reward for
 cutting a pair that moves apart: the term that keeps one subspace from taking two dependent
-motions, which it fits about as well as two subspaces do.
+motions, which it fits about as well as two subspaces do. A long edge, across a featureless
+band, extrapolates its local subspaces far: where its two ends move coherently its miss is
+read in a larger unit (:func:`long_edge_stretch`), so that perspective does not cut a body
+along the band.
 """
 
 from __future__ import annotations
