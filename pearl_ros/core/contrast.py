@@ -26,8 +26,9 @@ _STRANGER = 5.0  # a neighbour whose motion gap exceeds this many times the core
 _DIM = 3  # affine dimension of a rigid body's trajectories
 GROWTH_FROM = 6.0  # median edge lengths beyond which a long edge's unit grows
 # A long edge's unit grows only if one 3-D affine subspace fits the two ends' neighbourhoods
-# together within this factor of their own fits (RMS residuals): within one body 90% of
-# Hopkins155's long edges do (median 1.4), between bodies half do not (median 2.7).
+# together within this factor of their own fits (RMS residuals): of Hopkins155's edges longer
+# than 4 median lengths, 90% of those within one body do (median 1.4), and half of those
+# between bodies do not (median 2.7).
 COHERENCE = 2.0
 
 
