@@ -148,7 +148,8 @@ def long_edge_stretch(tracks: np.ndarray, edges: np.ndarray, neighbours: np.ndar
     rows = np.transpose(tracks, (1, 0, 2)).reshape(tracks.shape[1], -1)
     ends = [np.concatenate([edges[long, i : i + 1], neighbours[edges[long, i]]], axis=1)
             for i in (0, 1)]
-    own = np.sqrt(0.5 * (_spread(rows, ends[0]) ** 2 + _spread(rows, ends[1]) ** 2))
+    first, second = np.split(_spread(rows, np.concatenate(ends, axis=0)), 2)
+    own = np.sqrt(0.5 * (first**2 + second**2))
     both = _spread(rows, np.concatenate(ends, axis=1))
     coherent = both <= COHERENCE * np.maximum(own, 1e-12)
     stretch[long[coherent]] = reach[long[coherent]]
