@@ -58,11 +58,8 @@ def make_gap_scene(same_body: bool, frames: int = 12) -> tuple[np.ndarray, np.nd
     clouds = [rng.uniform(-60, 60, (60, 3)) + centre for centre in centres]
     motions = []
     for _ in range(2):
-        axis = rng.normal(size=3)
-        axis /= np.linalg.norm(axis)
-        k = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
-        motions.append((np.eye(3) + np.sin(0.06) * k + (1 - np.cos(0.06)) * k @ k,
-                        rng.normal(0, 4.0, 3)))
+        step = _rotation(rng, 0.06)
+        motions.append((step, rng.normal(0, 4.0, 3)))
     if same_body:
         motions[1] = motions[0]
     tracks = []

@@ -8,7 +8,7 @@ import pytest
 from pearl_ros.core import contrast
 from pearl_ros.core.contrast import edge_weights, long_edge_stretch, patch_residuals
 from pearl_ros.core.models import get_model
-from pearl_ros.core.neighbourhood import delaunay_edges, nearest_neighbours
+from pearl_ros.core.neighbourhood import delaunay_edges, nearest_neighbours, neighbourhood
 
 
 def misses(tracks: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -126,8 +126,8 @@ def test_a_stretched_edge_measures_its_miss_in_a_larger_unit():
 @pytest.mark.parametrize('same_body', [True, False])
 def test_long_edges_across_a_gap_stretch_only_within_one_body(gap_scene, same_body):
     tracks, cluster = gap_scene(same_body)
-    edges = delaunay_edges(tracks[-1])
-    neighbours = nearest_neighbours(tracks[-1], 10)
+    graph = neighbourhood(tracks)
+    edges, neighbours = graph.edges, graph.neighbours
     across = cluster[edges[:, 0]] != cluster[edges[:, 1]]
     assert np.any(across)
     stretch = long_edge_stretch(tracks, edges, neighbours, 3.0)
