@@ -1,8 +1,11 @@
-"""One typed configuration object for PEaRL; every default is written here once.
+"""Typed configuration of PEaRL; every default is written here once.
 
+Two objects: :class:`PearlConfig`, the parameters a user tunes (the ROS node declares them), and
+:class:`SolverSettings`, every tuned number of the solver itself (passes, patch sizes, weights,
+caps), which experiments change with ``--set solver.NAME=VALUE`` but which are no ROS parameters.
 Each field carries its description, unit and range as dataclass metadata, so that one check
-validates it here and the ROS node declares its parameters (descriptions, ranges) from the same
-source (:func:`parameter_specs`).
+validates it here and the front ends describe it from the same source (:func:`parameter_specs`,
+:func:`solver_specs`).
 """
 
 from __future__ import annotations
@@ -36,24 +39,49 @@ class ParameterSpec:
 
 
 def parameter_specs(cls: type) -> tuple[ParameterSpec, ...]:
-    """The :class:`ParameterSpec` of every field of a configuration dataclass ``cls``."""
+    """The :class:`ParameterSpec` of every scalar field of a configuration dataclass ``cls``.
+
+    Fields made with :func:`spec` only: ``PearlConfig.solver`` (a :class:`SolverSettings`) is
+    left out, so that the user parameters of ``PearlConfig`` are what this returns.
+    """
     return tuple(
         ParameterSpec(f.name, f.default, type(f.default), f.metadata['doc'], f.metadata['low'],
                       f.metadata['high'], f.metadata['choices'])
-        for f in fields(cls))
+        for f in fields(cls) if 'doc' in f.metadata)
+
+
+def solver_specs() -> tuple[ParameterSpec, ...]:
+    """The :class:`ParameterSpec` of every field of :class:`SolverSettings`."""
+    return parameter_specs(SolverSettings)
 
 
 def check_value(item: ParameterSpec, value: Any) -> None:
-    """Raise InputError naming ``item`` if ``value`` is of the wrong type or out of range."""
+    """Raise InputError naming ``item`` if ``value`` is of the wrong type or out of range.
+
+    A tuple parameter holds numbers, at least one, each within the range.
+    """
+    if item.type is tuple:
+        if not isinstance(value, tuple) or not value or not all(map(_is_number, value)):
+            raise InputError(f'{item.name} must be a non-empty tuple of numbers, got {value!r}')
+        for entry in value:
+            _check_range(item, entry)
+        return
     # bool is an int subclass, and an int is an acceptable float: compare the kinds users see.
     kind_ok = (isinstance(value, bool) if item.type is bool
-               else isinstance(value, (int, float)) and not isinstance(value, bool)
-               if item.type is float
+               else _is_number(value) if item.type is float
                else isinstance(value, item.type) and not isinstance(value, bool))
     if not kind_ok:
         raise InputError(f'{item.name} must be of type {item.type.__name__}, got {value!r}')
     if item.choices is not None and value not in item.choices:
         raise InputError(f'{item.name} must be one of {item.choices}, got {value!r}')
+    _check_range(item, value)
+
+
+def _is_number(value: Any) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool)
+
+
+def _check_range(item: ParameterSpec, value: Any) -> None:
     if item.low is not None and not value >= item.low:
         raise InputError(f'{item.name} must be >= {item.low}, got {value!r}')
     if item.high is not None and not value <= item.high:
@@ -64,6 +92,110 @@ def check_fields(config: Any) -> None:
     """Raise InputError naming the first field of ``config`` of the wrong type or out of range."""
     for item in parameter_specs(type(config)):
         check_value(item, getattr(config, item.name))
+
+
+@dataclass(frozen=True)
+class SolverSettings:
+    """Every tuned number of the solver (core and online), with its unit and range.
+
+    These are not ROS parameters: the defaults are what the benchmarks were measured with, and an
+    experiment changes one with ``--set solver.NAME=VALUE`` (``pearl_replay``, ``pearl_bench``).
+    ``proposal_levels`` is a tuple, given on the command line comma-separated (``1,2,4``).
+
+    Pure numerical tolerances stay module constants, since no experiment tunes them: the energy
+    decrease that counts as progress (1e-9 cost units, :mod:`pearl_ros.core.pearl`), the rank
+    tolerances of the models (``_RANK_TOL`` of :mod:`~pearl_ros.core.models.affine`,
+    ``RANK_TOL`` of :mod:`~pearl_ros.core.models._twoview`, ``_COLLINEAR_TOL`` of
+    :mod:`~pearl_ros.core.models.homography`), the coincident-points test of Hartley's
+    normalisation, the finite-difference step ``_FD_STEP`` and the unmeasurable residual ``FAR``
+    of the two-view models, and the guards against division by zero (1e-12).
+    """
+
+    # The search (pearl.py).
+    max_passes: int = spec(5, 'expansion passes over the labels within one sweep',
+                           low=1, high=1000)
+    max_failed: int = spec(
+        3, 'unused labels rejected in a row that end a sweep pass (labels go best gain first)',
+        low=1, high=1000000)
+    sigma_floor: float = spec(
+        0.5, 'least noise level a model may claim, in units of the noise scale', low=1e-3,
+        high=1.0)
+    proposal_levels: tuple[float, ...] = spec(
+        (1.0, 2.0, 4.0), 'noise levels a fresh hypothesis is offered at, in units of the noise '
+        'scale (each >= sigma_floor; comma-separated on the command line)', low=1e-3, high=1e3)
+    segment_samples: int = spec(
+        20, 'minimal samples drawn inside each current segment per proposal round',
+        low=0, high=100000)
+    split_tries: int = spec(3, 'expand-and-refit (split) moves tried per iteration',
+                            low=0, high=1000)
+    split_screen: int = spec(60, 'unused labels, best gain bound first, screened for split moves',
+                             low=1, high=1000000)
+    split_share_min: float = spec(
+        0.05, 'least share of a segment a split candidate must fit better than its model',
+        low=0.0, high=1.0)
+    split_share_max: float = spec(
+        0.9, 'most share of a segment a split candidate may fit better than its model (more is '
+        'a copy of the model, leaving nothing to refit)', low=0.0, high=1.0)
+    # Neighbourhoods and the contrast term (neighbourhood.py, contrast.py).
+    image_neighbours: int = spec(
+        10, 'nearest image neighbours of a feature: local samples, contrast patches and noise '
+        'scale neighbourhoods are drawn from them', low=1, high=1000)
+    patch_size: int = spec(
+        8, 'points of a local subspace fit of the contrast term: the point and its '
+        'closest-moving image neighbours', low=2, high=1000)
+    patch_core: int = spec(
+        4, 'points of a patch always kept: the point and its closest-moving neighbours',
+        low=2, high=1000)
+    stranger: float = spec(
+        5.0, 'a patch neighbour whose motion gap exceeds this many times that of the last core '
+        'neighbour is left out of the patch', low=1.0)
+    subspace_dim: int = spec(
+        3, "affine dimension of a rigid body's trajectories: contrast patches, the coherence of "
+        'long edges, and the motion subspaces that label young tracks', low=1, high=100)
+    growth_from: float = spec(
+        6.0, "median edge lengths beyond which a long coherent edge's unit grows",
+        low=1.0, high=1e6)
+    coherence: float = spec(
+        2.0, "most ratio of the RMS residual of one subspace fitted to a long edge's two end "
+        'neighbourhoods to that of their own fits, for its unit to grow', low=1.0, high=1e6)
+    # Models and the noise scale (models/, scale.py).
+    affine_reference_frames: int = spec(
+        30, 'frames at which an affine subspace pays label_cost as configured (its cost '
+        'scales with frames / this)', low=1, high=1000000)
+    fundamental_cost_weight: float = spec(
+        0.75, 'factor on label_cost for a fundamental matrix (one epipolar constraint per point '
+        'is weaker evidence than a long subspace)', low=0.0, high=100.0)
+    homography_cost_weight: float = spec(1.0, 'factor on label_cost for a homography',
+                                         low=0.0, high=100.0)
+    fundamental_reweight_steps: int = spec(
+        1, 'Sampson-reweighted linear fits of F after the first, when measuring the noise scale',
+        low=0, high=100)
+    lm_max_nfev: int = spec(
+        50, 'residual evaluations per Levenberg-Marquardt refit of a two-view model',
+        low=1, high=1000000)
+    scale_seeds: int = spec(60, 'image neighbourhoods fitted to estimate the noise scale',
+                            low=1, high=1000000)
+    # The online segmenter (online/segmenter.py).
+    rescale_every: int = spec(15, 'frames between estimates of the noise scale when streaming',
+                              low=1, high=1000000)
+    young_min_age: int = spec(
+        2, "frames a young track needs for its own trajectory to label it (fewer: its image "
+        "neighbours' vote)", low=2, high=1000)
+    subspace_members: int = spec(
+        5, 'fitted members a motion needs to offer its subspace to young tracks',
+        low=1, high=1000000)
+    energy_rise: float = spec(
+        0.05, 'rise of the energy per feature, as a share, on a warm frame without proposals '
+        'that makes the next frame propose', low=0.0, high=1e6)
+
+    def __post_init__(self) -> None:
+        check_fields(self)
+        if min(self.proposal_levels) < self.sigma_floor:
+            raise InputError(f'proposal_levels must be >= sigma_floor ({self.sigma_floor}), '
+                             f'got {self.proposal_levels!r}')
+        if self.split_share_min > self.split_share_max:
+            raise InputError(f'split_share_min must be <= split_share_max '
+                             f'({self.split_share_max}), got {self.split_share_min!r}')
 
 
 @dataclass(frozen=True)
@@ -79,6 +211,9 @@ class PearlConfig:
     ``unit_quantile`` quantile of the misses if larger, grown on long coherent edges by up to
     ``long_edge_growth``; :mod:`pearl_ros.core.contrast`). Cost
     units are those of D: one unit is a residual of one noise level.
+
+    ``solver`` holds the solver's own tuned numbers (:class:`SolverSettings`); it is not a user
+    parameter, and :func:`parameter_specs` leaves it out.
     """
 
     model: str = spec('affine', 'motion model: affine | fundamental | homography',
@@ -115,10 +250,15 @@ class PearlConfig:
                                low=1, high=10000)
     rounds: int = spec(3, 'proposal rounds: best models so far mixed with fresh samples',
                        low=1, high=1000)
+    # Not a user parameter: parameter_specs leaves it out (it has no spec metadata).
+    solver: SolverSettings = field(default_factory=SolverSettings)
 
     def __post_init__(self) -> None:
         check_fields(self)
+        if not isinstance(self.solver, SolverSettings):
+            raise InputError(f'solver must be a SolverSettings, got {self.solver!r}')
 
     @classmethod
     def field_names(cls) -> tuple[str, ...]:
-        return tuple(f.name for f in fields(cls))
+        """The user parameters' names (``solver`` is not one)."""
+        return tuple(item.name for item in parameter_specs(cls))
