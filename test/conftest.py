@@ -1,13 +1,83 @@
-"""Scene factories shared by the tests: synthetic motions with known ground truth."""
+"""Scene factories shared by the tests, and the datasets that the ``data`` tests need.
+
+The default suite (``make test``, ``-m "not data"``) runs on a bare clone: synthetic scenes and the
+bundled bags only. Tests marked ``data`` need whole datasets, found under ``$PEARL_DATA`` or else
+``../shared/data`` beside the repository; ``make test-data`` runs them, and a session that selects
+one whose dataset is missing stops with one line saying where the data is expected and where it
+comes from (a failure, never a skip).
+"""
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import numpy as np
 import pytest
+import scipy.io
 
-HOPKINS = Path(__file__).resolve().parents[1].parent / 'shared' / 'data' / 'hopkins155'
+REPO = Path(__file__).resolve().parents[1]
+DATA_ENV = 'PEARL_DATA'
+
+# Where each dataset comes from (../shared/data/README.md has their layout and citations).
+DATASET_SOURCES = {
+    'hopkins155': 'Hopkins155 ground-truth files (Tron & Vidal, CVPR 2007), '
+                  'http://www.vision.jhu.edu/data/hopkins155/',
+    'kt3dmoseg_dev': 'KT3DMoSeg clips (Xu, Cheong & Li, CVPR 2018; KITTI, CC BY-NC-SA 3.0), '
+                     'the 11 development clips',
+    'adelaidermf_f_dev': 'AdelaideRMF "F" pairs (Wong et al., ICCV 2011), '
+                         'the 10 development pairs',
+}
+# What a bare ``@pytest.mark.data`` needs; ``@pytest.mark.data('kt3dmoseg_dev')`` names another.
+DEFAULT_DATASET = 'hopkins155'
+
+
+def data_root() -> Path:
+    """``$PEARL_DATA`` when set, else ``../shared/data`` beside the repository."""
+    env = os.environ.get(DATA_ENV)
+    return Path(env).expanduser() if env else REPO.parent / 'shared' / 'data'
+
+
+def missing_dataset(name: str) -> str | None:
+    """None when dataset ``name`` is present, else the one-line message saying what to do."""
+    path = data_root() / name
+    if path.is_dir():
+        return None
+    return (f'{name} not found at {path} (set {DATA_ENV} to the folder that holds {name}/); '
+            f'it is {DATASET_SOURCES[name]}')
+
+
+def dataset(name: str) -> Path:
+    """The folder of dataset ``name``; fails the test with one line when it is missing."""
+    message = missing_dataset(name)
+    if message is not None:
+        pytest.fail(message, pytrace=False)
+    return data_root() / name
+
+
+@pytest.hookimpl(tryfirst=True)  # before ``-m`` selects on the markers
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    """A test that asks for a dataset fixture is a ``data`` test even without the marker."""
+    for item in items:
+        for fixture in getattr(item, 'fixturenames', ()):
+            if fixture in DATA_FIXTURES:
+                item.add_marker(pytest.mark.data(DATA_FIXTURES[fixture]))
+
+
+def pytest_collection_finish(session: pytest.Session) -> None:
+    """Stop before the first test when a selected data test's dataset is missing."""
+    needed = set()
+    for item in session.items:
+        for mark in item.iter_markers('data'):
+            needed.update(mark.args or (DEFAULT_DATASET,))
+    unknown = sorted(needed - DATASET_SOURCES.keys())
+    if unknown:
+        raise pytest.UsageError(f'unknown dataset(s) in a data marker: {unknown}; '
+                                f'known: {sorted(DATASET_SOURCES)}')
+    missing = [m for m in map(missing_dataset, sorted(needed)) if m is not None]
+    if missing:
+        hint = 'run `make test` (-m "not data") for the suite that needs no dataset'
+        pytest.exit('; '.join(missing) + f'; {hint}', returncode=pytest.ExitCode.TESTS_FAILED)
 
 
 def _rotation(rng: np.random.Generator, angle: float) -> np.ndarray:
@@ -65,7 +135,7 @@ def make_gap_scene(same_body: bool, frames: int = 12) -> tuple[np.ndarray, np.nd
     tracks = []
     for f in range(frames):
         views = []
-        for cloud, (step, shift) in zip(clouds, motions):
+        for cloud, (step, shift) in zip(clouds, motions, strict=True):
             rot = np.linalg.matrix_power(step, f)
             views.append((cloud - [150.0, 0, 0]) @ rot.T + f * shift)
         tracks.append(np.concatenate(views)[:, :2])
@@ -83,7 +153,70 @@ def gap_scene():
     return make_gap_scene
 
 
+def write_hopkins_mat(
+    path: Path, tracks: np.ndarray, labels: np.ndarray, focal: float = 500.0
+) -> Path:
+    """Write tracks (F, P, 2) px and labels (P,) as a Hopkins155 ``*_truth.mat`` file.
+
+    The fields as in the dataset (see ../shared/data/README.md): ``y`` (3, P, F) homogeneous
+    pixels, ``x`` the same normalised by ``K``, ``s`` (P, 1) groups 1..k, ``K``, ``width``,
+    ``height``, ``points``, ``frames``. Returns ``path``.
+    """
+    num_frames, num_points, _ = tracks.shape
+    k = np.array([[focal, 0.0, 320.0], [0.0, focal, 240.0], [0.0, 0.0, 1.0]])
+    y = np.concatenate((np.transpose(tracks, (2, 1, 0)), np.ones((1, num_points, num_frames))))
+    x = np.einsum('ij,jpf->ipf', np.linalg.inv(k), y)
+    groups = np.unique(labels, return_inverse=True)[1].reshape(-1, 1) + 1
+    path.parent.mkdir(parents=True, exist_ok=True)
+    scipy.io.savemat(str(path), {
+        'y': y, 'x': x, 's': groups.astype(np.float64), 'K': k,
+        'width': np.array([[640]]), 'height': np.array([[480]]),
+        'points': np.array([[num_points]]), 'frames': np.array([[num_frames]]),
+    })
+    return path
+
+
+@pytest.fixture
+def hopkins_like(tmp_path: Path):
+    """Factory: a Hopkins155-format folder in ``tmp_path`` that needs no dataset.
+
+    ``hopkins_like(name, sizes=(40, 30), frames=10, seed=0)`` writes
+    ``<tmp>/hopkins155/<name>/<name>_truth.mat`` from ``make_affine_scene`` and returns the
+    file; the folder (``path.parents[1]``) is then a Hopkins155 root for ``pearl_bench``.
+    The name sets the category as in the dataset (``cars...`` traffic, ``two_cranes...``
+    articulated, else checkerboard).
+    """
+
+    def make(name: str, sizes: tuple[int, ...] = (40, 30), frames: int = 10,
+             seed: int = 0) -> Path:
+        tracks, labels = make_affine_scene(sizes, frames, noise=0.3, seed=seed)
+        return write_hopkins_mat(tmp_path / 'hopkins155' / name / f'{name}_truth.mat',
+                                 tracks, labels)
+
+    return make
+
+
 @pytest.fixture
 def hopkins_root() -> Path:
-    assert HOPKINS.is_dir(), f'Hopkins155 data not found at {HOPKINS}'
-    return HOPKINS
+    """The Hopkins155 folder (``$PEARL_DATA/hopkins155``, default ../shared/data/hopkins155)."""
+    return dataset('hopkins155')
+
+
+@pytest.fixture
+def kt3dmoseg_root() -> Path:
+    """The KT3DMoSeg development clips (``$PEARL_DATA/kt3dmoseg_dev``)."""
+    return dataset('kt3dmoseg_dev')
+
+
+@pytest.fixture
+def adelaidermf_root() -> Path:
+    """The AdelaideRMF F development pairs (``$PEARL_DATA/adelaidermf_f_dev``)."""
+    return dataset('adelaidermf_f_dev')
+
+
+# Fixture -> the dataset it needs: a test that uses one is marked ``data`` at collection.
+DATA_FIXTURES = {
+    'hopkins_root': 'hopkins155',
+    'kt3dmoseg_root': 'kt3dmoseg_dev',
+    'adelaidermf_root': 'adelaidermf_f_dev',
+}

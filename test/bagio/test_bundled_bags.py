@@ -48,6 +48,7 @@ def test_bags_folder_holds_exactly_the_documented_bags() -> None:
         assert f'`bags/{name}`' in readme
 
 
+@pytest.mark.data
 @pytest.mark.parametrize('name', sorted(HOPKINS_BAGS))
 def test_hopkins_bag_matches_its_mat_file(name: str) -> None:
     sequence, motions, msgtype, kept = HOPKINS_BAGS[name]
@@ -139,6 +140,7 @@ def test_readme_regenerates_every_bag() -> None:
     assert sorted(readme_commands()) == ALL_BAGS
 
 
+@pytest.mark.data
 @pytest.mark.parametrize('name', ALL_BAGS)
 def test_readme_command_rebuilds_the_bag_message_for_message(
     name: str, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]

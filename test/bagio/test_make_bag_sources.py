@@ -11,6 +11,7 @@ import scipy.io
 from pearl_ros.bagio import read_feature_frames, read_ground_truth_frames, topics
 from pearl_ros.cli.make_bag import EPOCH_NS, main
 from pearl_ros.datasets.synthetic import BodySpec, synthetic_stream
+
 from bag_oracles import as_float32, raw_messages
 
 HOPKINS = Path(__file__).resolve().parents[2].parent / 'shared' / 'data' / 'hopkins155'
@@ -24,6 +25,7 @@ def one_error_line(capsys: pytest.CaptureFixture[str]) -> str:
     return lines[0]
 
 
+@pytest.mark.data
 def test_frames_keeps_the_chosen_frames_with_their_stamps(tmp_path: Path) -> None:
     y = scipy.io.loadmat(str(G12))['y']
     out = tmp_path / 'pair'
@@ -36,6 +38,7 @@ def test_frames_keeps_the_chosen_frames_with_their_stamps(tmp_path: Path) -> Non
     assert len(read_ground_truth_frames(out)) == 2
 
 
+@pytest.mark.data
 @pytest.mark.parametrize('frames', ['0,0', '3,1', '0,99', 'a,b', '-99'])
 def test_bad_frame_lists_are_one_line_errors(
     tmp_path: Path, capsys: pytest.CaptureFixture[str], frames: str
@@ -84,6 +87,7 @@ def test_bad_synthetic_options_are_one_line_errors(
     assert not any(tmp_path.iterdir())
 
 
+@pytest.mark.data
 def test_a_dot_bag_output_is_a_ros1_bag_file_with_the_same_messages(tmp_path: Path) -> None:
     assert main([str(G12), str(tmp_path / 'ros2')]) == 0
     assert main([str(G12), str(tmp_path / 'ros1.bag')]) == 0
@@ -100,6 +104,7 @@ def test_a_dot_bag_output_is_a_ros1_bag_file_with_the_same_messages(tmp_path: Pa
     assert sorted(p.name for p in tmp_path.iterdir()) == ['ros1.bag', 'ros2']  # no staging
 
 
+@pytest.mark.data
 def test_a_ros1_bag_file_is_replaced_only_with_force(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:

@@ -10,6 +10,7 @@ import pytest
 from pearl_ros.bagio import FeatureFrame, read_feature_frames, read_ground_truth, topics
 from pearl_ros.bagio.writer import write_feature_bag
 from pearl_ros.core.errors import InputError
+
 from bag_oracles import as_float32, raw_messages
 
 TOPIC = '/feature_tracker/feature'

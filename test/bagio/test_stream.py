@@ -22,6 +22,7 @@ from pearl_ros.bagio import (
 from pearl_ros.bagio.decode import decode_labels
 from pearl_ros.bagio.writer import write_ros1_bag
 from pearl_ros.core.errors import BagError, InputError
+
 from bag_oracles import raw_messages
 
 TS = get_typestore(Stores.ROS2_KILTED)

@@ -21,6 +21,7 @@ def truth_file(name: str) -> Path:
     return HOPKINS / name / f'{name}_truth.mat'
 
 
+@pytest.mark.data
 def test_pointcloud_bag_matches_the_mat_file(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
@@ -54,6 +55,7 @@ def test_pointcloud_bag_matches_the_mat_file(
     np.testing.assert_array_equal(got, s - s.min())
 
 
+@pytest.mark.data
 def test_pointcloud2_sqlite3_at_another_rate(tmp_path: Path) -> None:
     mat = scipy.io.loadmat(str(truth_file('cars2')))
     y, x = mat['y'], mat['x']
@@ -84,6 +86,7 @@ def test_pointcloud2_sqlite3_at_another_rate(tmp_path: Path) -> None:
     )
 
 
+@pytest.mark.data
 def test_normalised_points_follow_x_where_k_disagrees(tmp_path: Path) -> None:
     # three-cars carries a K that does not produce its x field: x is the authority.
     mat = scipy.io.loadmat(str(truth_file('three-cars')))
@@ -108,6 +111,7 @@ def test_missing_mat_file_is_a_one_line_error(
     assert not (tmp_path / 'out').exists()
 
 
+@pytest.mark.data
 def test_existing_output_needs_force(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     out = tmp_path / 'bag'
     mat = str(truth_file('1R2RCR_g12'))
@@ -125,6 +129,7 @@ def test_existing_output_needs_force(tmp_path: Path, capsys: pytest.CaptureFixtu
     assert sorted(p.name for p in tmp_path.iterdir()) == ['bag']  # no staging left
 
 
+@pytest.mark.data
 def test_force_never_deletes_something_that_is_not_a_bag(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
