@@ -6,9 +6,13 @@ STAMP := $(VENV)/.installed
 
 .PHONY: venv test test-data lint demo bench bench-node clean
 
-# The demo's bag, and extra pearl_node arguments (e.g. DEMO_ARGS='-p label_cost:=300.0').
+# The demo's bag; extra pearl_node parameters (e.g. DEMO_ARGS='-p label_cost:=300.0'), which
+# pearl_replay gets too (as --set label_cost=300.0); pearl_play's rate (Hz, 0 = as fast as the
+# node answers).
 DEMO_BAG ?= bags/1R2RCR_g12
 DEMO_ARGS ?=
+DEMO_RATE ?= 10
+DEMO_SET = $(foreach arg,$(DEMO_ARGS),$(if $(findstring :=,$(arg)),--set $(subst :=,=,$(arg))))
 # Where make demo writes the output bag (the same online code as the node, on the same bag).
 DEMO_OUT ?= build/demo_labels
 # ROS 2 discovery stays on this machine for the demo and the node benchmark.
@@ -42,17 +46,22 @@ lint: venv
 	$(BIN)/mypy pearl_ros || status=1; \
 	exit $$status
 
-# pearl_node in the background, the bag's feature messages played into it live by pearl_play
-# (labels and accuracy printed per frame), then Ctrl-C to the node; then pearl_replay writes the
-# output bag of the same bag with the same parameters to $(DEMO_OUT).
+# pearl_node in the background, told the bag's feature message type (pearl_play --msg-type);
+# the bag's feature messages played into it live by pearl_play (labels and accuracy printed per
+# frame), then Ctrl-C to the node; then pearl_replay writes the output bag of the same bag with
+# the same parameters to $(DEMO_OUT), and pearl_score scores it and says how to read it.
 demo: venv
-	@$(ROS_ENV) $(BIN)/pearl_node --ros-args -r features:=/feature_tracker/feature \
-	    --params-file config/pearl.yaml $(DEMO_ARGS) & node=$$!; \
-	$(ROS_ENV) $(BIN)/pearl_play $(DEMO_BAG) --timeout 20; status=$$?; \
+	@type=$$($(BIN)/pearl_play $(DEMO_BAG) --msg-type) || exit 1; \
+	$(ROS_ENV) $(BIN)/pearl_node --ros-args -r features:=/feature_tracker/feature \
+	    --params-file config/pearl.yaml -p msg_type:=$$type $(DEMO_ARGS) & node=$$!; \
+	$(ROS_ENV) $(BIN)/pearl_play $(DEMO_BAG) --timeout 20 --rate $(DEMO_RATE); status=$$?; \
 	kill -INT $$node; wait $$node; \
 	test $$status -eq 0 || exit $$status; \
+	echo; echo "pearl_replay: the same bag, code and parameters, offline, into $(DEMO_OUT)"; \
 	mkdir -p $(dir $(DEMO_OUT)) && \
-	$(BIN)/pearl_replay $(DEMO_BAG) --output $(DEMO_OUT) --params config/pearl.yaml --force
+	$(BIN)/pearl_replay $(DEMO_BAG) --output $(DEMO_OUT) --params config/pearl.yaml \
+	    $(DEMO_SET) --force && \
+	echo && $(BIN)/pearl_score $(DEMO_OUT) --summary --explain
 
 bench: venv
 	$(BIN)/pearl_bench hopkins155 ../shared/data/hopkins155 --frames all

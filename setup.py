@@ -33,6 +33,7 @@ setup(
             'pearl_node_bench = pearl_ros.ros.bench:main',
             'pearl_play = pearl_ros.ros.play:main',
             'pearl_replay = pearl_ros.cli.replay:main',
+            'pearl_score = pearl_ros.cli.score:main',
         ],
     },
 )

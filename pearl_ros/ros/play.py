@@ -5,9 +5,11 @@ Not a ``ros2 bag play``: it publishes one message, waits for that message's ``mo
 (matched by stamp), then the next, at most at ``--rate`` Hz. So nothing is lost to queue depths
 and every frame's answer is accounted for, whatever the node's speed.
 
-Example (``make demo`` does this)::
+Example (``make demo`` does this; ``--msg-type`` prints the bag's feature message type, which
+the node must be told)::
 
-    pearl_node --ros-args -r features:=/feature_tracker/feature &
+    pearl_node --ros-args -r features:=/feature_tracker/feature \\
+        -p msg_type:=$(pearl_play bags/1R2RCR_g12 --msg-type) &
     pearl_play bags/1R2RCR_g12
 """
 
@@ -16,56 +18,122 @@ from __future__ import annotations
 import argparse
 import sys
 import time
+import typing
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import rclpy
-from rclpy.executors import Executor, SingleThreadedExecutor
+from rclpy.executors import Executor, ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from rclpy.serialization import deserialize_message
-from rosbags.highlevel import AnyReader
 from sensor_msgs.msg import PointCloud2
 
+from pearl_ros import scoring
 from pearl_ros.bagio import decode, reader
-from pearl_ros.core.errors import BagError, PearlError
-from pearl_ros.core.metrics import misclassification
+from pearl_ros.core.errors import BagError, InputError, PearlError
 from pearl_ros.ros import convert
 
 FEATURE_TOPIC = '/feature_tracker/feature'
-TRUTH_TOPIC = '/ground_truth/labels'
-_SYMBOLS = '0123456789abcdefghijklmnopqrstuvwxyz'
+TRUTH_TOPIC = scoring.TRUTH_TOPIC
+
+LEGEND = """\
+One line per message of the bag, as pearl_node answered it:
+  features   tracked features in the message
+  motions    motions the node found in this frame (true: how many the ground truth has)
+  error      misclassification: the share of this frame's features labelled wrongly, after
+             the node's motion numbers are matched one-to-one to the true ones (a feature
+             labelled - counts as wrong); n/a = nothing labelled yet, or no ground truth
+  labels     one character per feature, in the message's order: 0-9, a-z = the motion the
+             node gave it (its own numbering), - = not labelled (an outlier, or a feature it
+             cannot place yet); "+N more" = N features not shown (--width 0 shows all)
+The first frame has no labels: a motion needs two frames to be seen."""
 
 
-def bag_messages(path: str | Path, topic: str = FEATURE_TOPIC) -> list[Any]:
-    """The messages of ``topic`` in a bag, in recording order, as rclpy message objects.
+@dataclass(frozen=True)
+class BagFeatures:
+    """The feature messages of a bag, ready to publish.
 
-    The bag's own bytes are handed to rclpy's deserialiser, so the node sees exactly what was
-    recorded (points, every channel, velocities), not a re-encoding.
+    Attributes
+    ----------
+    msg_type : str
+        ``'PointCloud'`` or ``'PointCloud2'``: the node's ``msg_type`` parameter for them.
+    messages : list
+        rclpy messages, in recording order.
+    skipped : list of (int, str)
+        Position on the topic and reason of each message ``pearl_node`` would refuse.
+    """
+
+    msg_type: str
+    messages: list[Any]
+    skipped: list[tuple[int, str]] = field(default_factory=list)
+
+
+def bag_msg_type(path: str | Path, topic: str = FEATURE_TOPIC) -> str:
+    """``'PointCloud'`` or ``'PointCloud2'``: what ``topic`` carries in the bag at ``path``.
 
     Raises
     ------
     BagError
-        Missing or corrupt bag, no such topic, not a PointCloud / PointCloud2 topic.
+        Missing or corrupt bag, no such topic, another type or several types on it.
     """
-    kinds = reader.topics(path)  # BagError for a missing or unreadable bag
+    kinds = reader.topics(path)
     if topic not in kinds:
         raise BagError(f'{path}: no topic {topic!r}; topics: {", ".join(kinds) or "none"}')
     name = kinds[topic].removeprefix('sensor_msgs/msg/')
     if name not in convert.MSG_CLASSES:
         raise BagError(f'{path}: topic {topic} has type {kinds[topic]}, expected '
                        f'{" or ".join(convert.TYPE_NAMES.values())}')
-    msg_class = convert.MSG_CLASSES[name]
-    try:
-        with AnyReader([Path(path)], default_typestore=reader.TYPESTORE) as bag:
-            connections = [c for c in bag.connections if c.topic == topic]
-            return [deserialize_message(bytes(raw), msg_class)
-                    for _, _, raw in bag.messages(connections=connections)]
-    except Exception as err:  # rosbags and the storage libraries raise many kinds
-        raise BagError(f'cannot read bag {path}: {" ".join(str(err).split())}') from err
+    return name
+
+
+def load_bag(path: str | Path, topic: str = FEATURE_TOPIC) -> BagFeatures:
+    """The messages of ``topic`` as rclpy messages, from a ROS 2 bag or a ROS 1 ``.bag`` file.
+
+    Each message is read with rosbags (as ``pearl_replay`` reads it), serialised to ROS 2 CDR
+    and handed to rclpy's deserialiser: every field and channel comes through, and a ROS 1
+    message (whose bytes are not CDR) loses only its header's ``seq``. Messages the node would
+    refuse (malformed, empty) are left out and listed in ``skipped``.
+
+    Raises
+    ------
+    BagError
+        Missing or corrupt bag, no such topic, not a PointCloud / PointCloud2 topic, several
+        types on it, or no message that can be played.
+    """
+    msg_type = bag_msg_type(path, topic)
+    msg_class = convert.MSG_CLASSES[msg_type]
+    messages, skipped = [], []
+    with reader.open_feature_stream(path, topic) as stream:
+        for item in stream:
+            if not isinstance(item, reader.FeatureMessage):
+                continue
+            try:
+                if item.msg is None:
+                    raise InputError(item.error or 'unreadable')
+                reader.decode_feature_message(item.msg, item.msgtype)  # what the node refuses
+            except InputError as err:
+                skipped.append((item.index, ' '.join(str(err).split())))
+                continue
+            try:
+                cdr = bytes(reader.TYPESTORE.serialize_cdr(item.msg, item.msgtype))
+            except Exception as err:  # rosbags' serialiser raises several kinds
+                reason = ' '.join(str(err).split())
+                skipped.append((item.index, f'cannot convert to ROS 2: {reason}'))
+                continue
+            messages.append(deserialize_message(cdr, msg_class))
+    if not messages:
+        first = f' (first: {skipped[0][1]})' if skipped else ''
+        raise BagError(f'{path}: no message on {topic} can be played{first}')
+    return BagFeatures(msg_type, messages, skipped)
+
+
+def bag_messages(path: str | Path, topic: str = FEATURE_TOPIC) -> list[Any]:
+    """The playable messages of ``topic`` in a bag, in recording order (:func:`load_bag`)."""
+    return load_bag(path, topic).messages
 
 
 @dataclass(frozen=True)
@@ -120,6 +188,11 @@ class Player(Node):
             spin_until(executor, lambda: False, settle_s)
         return matched
 
+    def subscribed_types(self) -> list[str]:
+        """Message types of the subscriptions on the features topic (any type, matched or not)."""
+        infos = self.get_subscriptions_info_by_topic(self.publisher.topic_name)
+        return sorted({info.topic_type for info in infos})
+
     def play(self, executor: Executor, *, rate_hz: float = 0.0, timeout_s: float = 5.0,
              on_answer: Callable[[int, Any, Answer | None], None] | None = None
              ) -> list[Answer | None]:
@@ -153,84 +226,126 @@ def spin_until(executor: Executor, done: Callable[[], bool], timeout_s: float) -
     return True
 
 
-def label_string(labels: np.ndarray, width: int = 64) -> str:
-    """One character per label (``-`` for -1, ``?`` beyond 35), cut at ``width``."""
-    text = ''.join('-' if k < 0 else _SYMBOLS[k] if k < len(_SYMBOLS) else '?'
-                   for k in labels.tolist())
-    return text if len(text) <= width else text[: width - 3] + '...'
+def frame_line(index: int, row: scoring.FrameScore, labels: np.ndarray, width: int) -> str:
+    """One frame of the printout (see :data:`LEGEND`)."""
+    true = f' (true {row.true_motions})' if row.scored else ''
+    error = '   n/a' if row.labelled == 0 else scoring.percent(row.error)
+    return (f'frame {index:3d}  {row.features:4d} features  {row.motions} motions{true}  '
+            f'error {error}  {scoring.label_string(labels, width)}')
 
 
-def score(answer: Answer, truth: dict[int, int]) -> float | None:
-    """Misclassification of the labelled features that have ground truth (None if none have)."""
-    known = np.array([int(i) in truth for i in answer.ids.tolist()], dtype=bool)
-    if not known.any():
-        return None
-    gt = np.array([truth[int(i)] for i in answer.ids[known].tolist()], dtype=np.int64)
-    return misclassification(answer.labels[known], gt)
+class _Parser(argparse.ArgumentParser):
+    """Usage errors raise InputError, so that main prints one ``error:`` line and returns 1."""
+
+    def error(self, message: str) -> typing.NoReturn:
+        raise InputError(message)
 
 
-def main(argv: Sequence[str] | None = None) -> int:
-    """``pearl_play BAG``: exit 0 when every message was answered, 1 otherwise."""
-    parser = argparse.ArgumentParser(prog='pearl_play', description=__doc__.split('\n\n')[0])
-    parser.add_argument('bag', help='ROS 2 bag folder (or ROS 1 .bag) with feature messages')
+def build_parser() -> argparse.ArgumentParser:
+    parser = _Parser(prog='pearl_play', description=(__doc__ or '').split('\n\n')[0])
+    parser.add_argument('bag', help='ROS 2 bag folder, .mcap/.db3 file, or ROS 1 .bag file, '
+                        'with feature messages')
+    parser.add_argument('--msg-type', action='store_true',
+                        help="print the feature topic's message type (PointCloud or PointCloud2: "
+                        "pearl_node's msg_type parameter) and exit")
     parser.add_argument('--topic', default=FEATURE_TOPIC, help='feature topic in the bag')
-    parser.add_argument('--truth-topic', default=TRUTH_TOPIC, help='ground truth in the bag')
+    parser.add_argument('--truth-topic', default=TRUTH_TOPIC,
+                        help="ground truth in the bag ('' for none)")
     parser.add_argument('--features', default=FEATURE_TOPIC,
                         help='topic to publish on (what pearl_node subscribes)')
     parser.add_argument('--labels', default='/motion_labels', help="pearl_node's labels topic")
     parser.add_argument('--rate', type=float, default=10.0, help='Hz, at most (0 = no limit)')
     parser.add_argument('--timeout', type=float, default=5.0,
                         help='s, wait for the node (discovery) and for each answer')
-    args, ros_args = parser.parse_known_args(argv)
+    parser.add_argument('--width', type=int, default=60,
+                        help='labels shown per frame (0 = all)')
+    return parser
 
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """``pearl_play BAG``: exit 0 when every message was answered, 1 otherwise."""
+    parser = build_parser()
     try:
-        messages = bag_messages(args.bag, args.topic)
-        kinds = reader.topics(args.bag)
-        truth = reader.read_ground_truth(args.bag, args.truth_topic) \
-            if args.truth_topic in kinds else {}
+        try:
+            args, ros_args = parser.parse_known_args(argv)
+        except SystemExit as done:  # --help
+            return int(done.code or 0)
+        if args.msg_type:
+            print(bag_msg_type(args.bag, args.topic))
+            return 0
+        bag = load_bag(args.bag, args.topic)
+        truth = _truth(args.bag, args.truth_topic)
     except PearlError as err:
         print(f'error: {err}', file=sys.stderr)
         return 1
-
+    for index, reason in bag.skipped:
+        print(f'warning: message {index} on {args.topic} not played (pearl_node would skip it '
+              f'too): {reason}', file=sys.stderr)
     rclpy.init(args=ros_args)
     player = None
     try:
         executor = SingleThreadedExecutor()
-        player = Player(messages, features_topic=args.features, labels_topic=args.labels)
+        player = Player(bag.messages, features_topic=args.features, labels_topic=args.labels)
         executor.add_node(player)
         if not player.wait_for_node(executor, args.timeout):
-            print(f'error: no pearl_node subscribed to {args.features} within {args.timeout} s',
-                  file=sys.stderr)
+            print(f'error: {_not_found(player, bag.msg_type, args)}', file=sys.stderr)
             return 1
-        print(f'{args.bag}: {len(messages)} messages -> {args.features}, labels <- {args.labels}')
-
-        def show(index: int, msg: Any, answer: Answer | None) -> None:
-            del msg
-            if answer is None:
-                print(f'frame {index:3d}  no labels within {args.timeout} s')
-                return
-            error = score(answer, truth)
-            motions = np.unique(answer.labels[answer.labels >= 0]).size
-            shown = '   n/a' if error is None else f'{100 * error:5.1f}%'
-            print(f'frame {index:3d}  {answer.ids.size:4d} features  {motions} motions  '
-                  f'error {shown}  {label_string(answer.labels)}', flush=True)
-
-        answers = player.play(executor, rate_hz=args.rate, timeout_s=args.timeout,
-                              on_answer=show)
-        missing = sum(answer is None for answer in answers)
-        last = next((a for a in reversed(answers) if a is not None), None)
-        final = score(last, truth) if last is not None else None
-        summary = 'n/a' if final is None else f'{100 * final:.1f}%'
-        print(f'{len(answers) - missing}/{len(answers)} frames answered; '
-              f'misclassification on the last frame: {summary}')
-        # The output bag of the same frames is pearl_replay's job (make demo runs it next).
-        return 0 if missing == 0 else 1
-    except KeyboardInterrupt:
+        return _play(player, executor, bag, truth, args)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        print('error: interrupted', file=sys.stderr)
         return 1
     finally:
         if player is not None:
             player.destroy_node()
         rclpy.try_shutdown()
+
+
+def _truth(bag: str, topic: str) -> scoring.GroundTruth | None:
+    """The bag's ground truth, or None if it has no such topic (or ``topic`` is empty)."""
+    if not topic or topic not in reader.topics(bag):
+        return None
+    return scoring.GroundTruth.from_bag(bag, topic)
+
+
+def _play(player: Player, executor: Executor, bag: BagFeatures,
+          truth: scoring.GroundTruth | None, args: argparse.Namespace) -> int:
+    """Play every message, print a line per frame and the summary; the exit code."""
+    source = 'no ground truth' if truth is None else (
+        f'ground truth from {args.truth_topic}'
+        + (', per frame (features change motion)' if truth.changes_over_time else ''))
+    print(f'{args.bag}: {len(bag.messages)} {bag.msg_type} messages -> {args.features}, '
+          f'labels <- {args.labels}; {source}')
+    print(LEGEND, flush=True)
+    rows: list[scoring.FrameScore] = []
+
+    def show(index: int, msg: Any, answer: Answer | None) -> None:
+        del msg
+        if answer is None:
+            print(f'frame {index:3d}  no labels within {args.timeout} s', flush=True)
+            return
+        row = scoring.score_frame(answer.stamp_ns, answer.ids, answer.labels, truth)
+        rows.append(row)
+        print(frame_line(index, row, answer.labels, args.width), flush=True)
+
+    answers = player.play(executor, rate_hz=args.rate, timeout_s=args.timeout, on_answer=show)
+    missing = sum(answer is None for answer in answers)
+    print(f'{len(answers) - missing}/{len(answers)} frames answered by pearl_node')
+    if truth is not None:
+        for line in scoring.summary_lines(scoring.summarise(rows)):
+            print(line)
+    return 0 if missing == 0 else 1
+
+
+def _not_found(player: Player, msg_type: str, args: argparse.Namespace) -> str:
+    """Why no pearl_node matched within the timeout, with the fix when it is a type mismatch."""
+    wanted = convert.TYPE_NAMES[msg_type]
+    others = [kind for kind in player.subscribed_types() if kind != wanted]
+    if others:
+        return (f'pearl_node subscribes {", ".join(others)} on {args.features} but the bag has '
+                f'{wanted}: start it with -p msg_type:={msg_type}')
+    return (f'no pearl_node subscribed to {args.features} and publishing {args.labels} '
+            f'within {args.timeout} s')
+
 
 
 if __name__ == '__main__':
