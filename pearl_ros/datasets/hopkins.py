@@ -7,6 +7,7 @@ from pathlib import Path
 
 import numpy as np
 import scipy.io
+from scipy.io.matlab import MatReadError
 
 from pearl_ros.core.errors import InputError
 
@@ -54,11 +55,12 @@ def category(name: str) -> str:
 
 
 def load_mat(path: str | Path, name: str | None = None) -> Sequence:
-    """Read one ``*_truth.mat`` file (fields ``y`` (3, P, F), ``s`` (P, 1), ``width``, ``height``)."""
+    """Read one ``*_truth.mat`` file (fields ``y`` (3, P, F), ``s`` (P, 1), ``width``,
+    ``height``)."""
     path = Path(path)
     try:
         mat = scipy.io.loadmat(str(path))
-    except (OSError, ValueError) as err:
+    except (OSError, ValueError, MatReadError) as err:
         raise InputError(f'cannot read Hopkins .mat file {path}: {err}') from err
     missing = [key for key in ('y', 's') if key not in mat]
     if missing:
