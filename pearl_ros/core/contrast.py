@@ -20,19 +20,11 @@ from __future__ import annotations
 
 import numpy as np
 
-_PATCH = 8  # points of a local subspace fit: the point and its closest-moving neighbours
-_CORE = 4  # the point and its 3 closest-moving neighbours always make up the patch
-_STRANGER = 5.0  # a neighbour whose motion gap exceeds this many times the core's is left out
-_DIM = 3  # affine dimension of a rigid body's trajectories
-GROWTH_FROM = 6.0  # median edge lengths beyond which a long edge's unit grows
-# A long edge's unit grows only if one 3-D affine subspace fits the two ends' neighbourhoods
-# together within this factor of their own fits (RMS residuals): of Hopkins155's edges longer
-# than 4 median lengths, 90% of those within one body do (median 1.4), and half of those
-# between bodies do not (median 2.7).
-COHERENCE = 2.0
+from pearl_ros.core.config import SolverSettings
 
 
-def patch_residuals(data: np.ndarray, edges: np.ndarray, neighbours: np.ndarray) -> np.ndarray:
+def patch_residuals(data: np.ndarray, edges: np.ndarray, neighbours: np.ndarray,
+                    settings: SolverSettings | None = None) -> np.ndarray:
     """The miss of each edge's points from each other's local subspace, ``(E,)`` pixels.
 
     Parameters
@@ -40,32 +32,37 @@ def patch_residuals(data: np.ndarray, edges: np.ndarray, neighbours: np.ndarray)
     data : (N, 2F) float64, trajectories scaled by 1/sqrt(F) (``AffineSubspace.data``)
     edges : (E, 2) int, neighbour pairs
     neighbours : (N, k) int, each point's nearest image neighbours
+    settings : SolverSettings, optional
+        ``patch_size`` (8), ``patch_core`` (4), ``stranger`` (5) and ``subspace_dim`` (3).
 
     Returns
     -------
     (E,) float64: for edge (p, q), the mean of the distance from q's trajectory to the 3-D
     affine subspace fitted to p's patch and that of p to q's. A patch is the point and the
-    ``_PATCH - 1`` of its neighbours whose motion (trajectory less its mean position) is closest
-    to its own: near a boundary, the nearest points are often on the other body, most often
-    where that body's features are denser. Of those, a neighbour whose motion gap is more than
-    ``_STRANGER`` times that of the point's third closest-moving neighbour is left out too:
-    next to a denser body, the patch of a point near the boundary would otherwise take several
-    of that body's points, and its subspace, spanning both motions, would hold the other side's
-    trajectories. Zero where patches hold at most 4 points.
+    ``patch_size - 1`` of its neighbours whose motion (trajectory less its mean position) is
+    closest to its own: near a boundary, the nearest points are often on the other body, most
+    often where that body's features are denser. Of those, a neighbour whose motion gap is more
+    than ``stranger`` times that of the point's third closest-moving neighbour (the last of the
+    ``patch_core`` points) is left out too: next to a denser body, the patch of a point near
+    the boundary would otherwise take several of that body's points, and its subspace, spanning
+    both motions, would hold the other side's trajectories. Zero where patches hold at most 4
+    points.
     """
     if edges.shape[0] == 0:
         return np.zeros(0)
+    settings = settings or SolverSettings()
+    size, core_size, dim = settings.patch_size, settings.patch_core, settings.subspace_dim
     n = data.shape[0]
     rows = data.reshape(n, -1, 2)
     moves = (rows - rows.mean(axis=1, keepdims=True)).reshape(n, -1)
     gap = np.linalg.norm(moves[neighbours] - moves[:, None, :], axis=2)
-    closest = np.argsort(gap, axis=1, kind='stable')[:, : _PATCH - 1]
+    closest = np.argsort(gap, axis=1, kind='stable')[:, : size - 1]
     neighbours = np.take_along_axis(neighbours, closest, axis=1)
     gap = np.take_along_axis(gap, closest, axis=1)
     member = np.ones((n, 1 + neighbours.shape[1]))  # 1 in the patch, 0 left out
-    if neighbours.shape[1] >= _CORE:
-        core = gap[:, _CORE - 2 : _CORE - 1]
-        member[:, _CORE:] = gap[:, _CORE - 1 :] <= _STRANGER * core
+    if neighbours.shape[1] >= core_size:
+        core = gap[:, core_size - 2 : core_size - 1]
+        member[:, core_size:] = gap[:, core_size - 1 :] <= settings.stranger * core
     patch = np.concatenate([np.arange(n)[:, None], neighbours], axis=1)
     points = data[patch]  # (N, k, 2F)
     mean = np.einsum('nk,nkd->nd', member, points) / member.sum(axis=1)[:, None]
@@ -73,8 +70,8 @@ def patch_residuals(data: np.ndarray, edges: np.ndarray, neighbours: np.ndarray)
     # Principal directions from each patch's k x k Gram matrix (cheaper than an SVD of the
     # patch): with G = C C^T = U S^2 U^T, the directions are S^-1 U^T C.
     values, vectors = np.linalg.eigh(centred @ np.transpose(centred, (0, 2, 1)))
-    top = vectors[:, :, ::-1][:, :, :_DIM]  # (N, k, <=3), largest first
-    lengths = np.sqrt(np.maximum(values[:, ::-1][:, :_DIM], 0.0))
+    top = vectors[:, :, ::-1][:, :, :dim]  # (N, k, <=3), largest first
+    lengths = np.sqrt(np.maximum(values[:, ::-1][:, :dim], 0.0))
     basis = np.einsum('nkj,nkd->njd', top, centred)
     # A direction without spread (a patch of at most 3 points) spans nothing.
     basis /= np.where(lengths > 1e-12, lengths, np.inf)[:, :, None]  # (N, <=3, 2F)
@@ -111,18 +108,20 @@ def edge_weights(residuals: np.ndarray, scale: float, smoothness: float, separat
 
 
 def long_edge_stretch(tracks: np.ndarray, edges: np.ndarray, neighbours: np.ndarray,
-                      growth: float) -> np.ndarray:
+                      growth: float, settings: SolverSettings | None = None) -> np.ndarray:
     """How much each edge's unit grows with its length, ``(E,)`` >= 1.
 
     A local subspace extrapolated far from its patch misses a point of the same body by more
     the farther it reaches (perspective across a featureless band: on Hopkins155 the misses of
     long edges within one body grow about in proportion to their length). An edge longer than
-    ``GROWTH_FROM`` median edge lengths (in the last frame) has its unit grown in proportion
+    ``growth_from`` median edge lengths (in the last frame) has its unit grown in proportion
     to its length, up to ``growth`` times (``PearlConfig.long_edge_growth``), but only if its
     two ends' neighbourhoods (each point and its ``neighbours``) are coherent: one 3-D affine
-    subspace fits both together within ``COHERENCE`` times their own fits. Two bodies far
-    apart on a featureless background are not, and keep the plain unit (ungated, such edges
-    tied three independent bodies into one model).
+    subspace fits both together within ``coherence`` times their own fits (RMS residuals).
+    Two bodies far apart on a featureless background are not, and keep the plain unit
+    (ungated, such edges tied three independent bodies into one model). Of Hopkins155's edges
+    longer than 4 median lengths, 90% of those within one body are coherent at the default 2
+    (median ratio 1.4), and half of those between bodies are not (median 2.7).
 
     Parameters
     ----------
@@ -130,6 +129,8 @@ def long_edge_stretch(tracks: np.ndarray, edges: np.ndarray, neighbours: np.ndar
     edges : (E, 2) int
     neighbours : (N, k) int, each point's nearest image neighbours
     growth : float >= 1
+    settings : SolverSettings, optional
+        ``growth_from`` (6), ``coherence`` (2) and ``subspace_dim`` (3).
 
     Returns
     -------
@@ -138,27 +139,31 @@ def long_edge_stretch(tracks: np.ndarray, edges: np.ndarray, neighbours: np.ndar
     stretch = np.ones(edges.shape[0])
     if growth <= 1.0 or edges.shape[0] == 0:
         return stretch
+    settings = settings or SolverSettings()
     tracks = np.asarray(tracks, dtype=np.float64)
     last = tracks[-1]
     lengths = np.linalg.norm(last[edges[:, 0]] - last[edges[:, 1]], axis=1)
-    reach = np.clip(lengths / (GROWTH_FROM * max(float(np.median(lengths)), 1e-12)), 1.0, growth)
+    reach = np.clip(lengths / (settings.growth_from * max(float(np.median(lengths)), 1e-12)),
+                    1.0, growth)
     long = np.flatnonzero(reach > 1.0)
     if long.size == 0:
         return stretch
     rows = np.transpose(tracks, (1, 0, 2)).reshape(tracks.shape[1], -1)
     ends = [np.concatenate([edges[long, i : i + 1], neighbours[edges[long, i]]], axis=1)
             for i in (0, 1)]
-    first, second = np.split(_spread(rows, np.concatenate(ends, axis=0)), 2)
+    dim = settings.subspace_dim
+    first, second = np.split(_spread(rows, np.concatenate(ends, axis=0), dim), 2)
     own = np.sqrt(0.5 * (first**2 + second**2))
-    both = _spread(rows, np.concatenate(ends, axis=1))
-    coherent = both <= COHERENCE * np.maximum(own, 1e-12)
+    both = _spread(rows, np.concatenate(ends, axis=1), dim)
+    coherent = both <= settings.coherence * np.maximum(own, 1e-12)
     stretch[long[coherent]] = reach[long[coherent]]
     return stretch
 
 
-def _spread(rows: np.ndarray, groups: np.ndarray) -> np.ndarray:
-    """RMS residual of each group of ``rows`` to its own best 3-D affine subspace, ``(G,)``."""
+def _spread(rows: np.ndarray, groups: np.ndarray, dim: int) -> np.ndarray:
+    """RMS residual of each group of ``rows`` to its own best ``dim``-D affine subspace,
+    ``(G,)``."""
     points = rows[groups]
     centred = points - points.mean(axis=1, keepdims=True)
     values = np.linalg.svd(centred, compute_uv=False)
-    return np.sqrt(np.sum(np.square(values[:, _DIM:]), axis=1) / groups.shape[1])
+    return np.sqrt(np.sum(np.square(values[:, dim:]), axis=1) / groups.shape[1])

@@ -7,11 +7,10 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import Delaunay, QhullError, cKDTree
 
+from pearl_ros.core.config import SolverSettings
 from pearl_ros.core.contrast import patch_residuals
 from pearl_ros.core.errors import InputError
 from pearl_ros.core.models import get_model
-
-NEIGHBOURS = 10  # image neighbours a local sample, or a contrast patch, is drawn from
 
 
 @dataclass(frozen=True)
@@ -43,8 +42,12 @@ class Neighbourhood:
 
 
 def neighbourhood(tracks: np.ndarray, ids: np.ndarray | None = None,
-                  previous: Neighbourhood | None = None) -> Neighbourhood:
+                  previous: Neighbourhood | None = None,
+                  settings: SolverSettings | None = None) -> Neighbourhood:
     """Delaunay edges, nearest neighbours and edge misses of ``tracks`` (F, N, 2).
+
+    Each point gets its ``settings.image_neighbours`` nearest image neighbours (10), and the
+    misses are measured over patches shaped by ``settings`` (:func:`patch_residuals`).
 
     With ``ids`` (N,) equal to those of a ``previous`` neighbourhood (the same features, in the
     same order, as a tracker delivers them a frame later), its edges and neighbours are reused:
@@ -52,6 +55,7 @@ def neighbourhood(tracks: np.ndarray, ids: np.ndarray | None = None,
     reusing misses a frame or two old cost the Hopkins155 stream half a point of error
     (BENCHMARKS.md), and they are the larger part of the cost.
     """
+    settings = settings or SolverSettings()
     tracks = np.asarray(tracks, dtype=np.float64)
     trajectories = get_model('affine').data(tracks)  # validates tracks
     if ids is not None:
@@ -64,8 +68,9 @@ def neighbourhood(tracks: np.ndarray, ids: np.ndarray | None = None,
     else:
         anchor = tracks[-1]
         edges = delaunay_edges(anchor)
-        neighbours = nearest_neighbours(anchor, NEIGHBOURS)
-    return Neighbourhood(edges, neighbours, patch_residuals(trajectories, edges, neighbours), ids)
+        neighbours = nearest_neighbours(anchor, settings.image_neighbours)
+    return Neighbourhood(edges, neighbours,
+                         patch_residuals(trajectories, edges, neighbours, settings), ids)
 
 
 def delaunay_edges(points: np.ndarray) -> np.ndarray:

@@ -16,30 +16,17 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from pearl_ros.core.config import PearlConfig
+from pearl_ros.core.config import PearlConfig, SolverSettings
 from pearl_ros.core.contrast import edge_weights, long_edge_stretch
 from pearl_ros.core.energy import Problem, energy
 from pearl_ros.core.errors import InputError
 from pearl_ros.core.expansion import expansion_move
 from pearl_ros.core.models import MotionModel, get_model
-from pearl_ros.core.neighbourhood import (
-    NEIGHBOURS,
-    Neighbourhood,
-    nearest_neighbours,
-    neighbourhood,
-)
+from pearl_ros.core.neighbourhood import Neighbourhood, nearest_neighbours, neighbourhood
 from pearl_ros.core.proposals import mixed_samples, uniform_samples
 from pearl_ros.core.scale import local_scale
 
 OUTLIER = 0
-_MAX_PASSES = 5  # expansion passes over the labels within one sweep
-_MAX_FAILED = 3  # unused labels rejected in a row that end a pass (the best by gain go first)
-_FLOOR = 0.5  # least model noise level, in units of the fresh-proposal level
-_SEGMENT_SAMPLES = 20  # minimal samples drawn inside each current segment per round
-_SPLIT_TRIES = 3  # expand-and-refit moves tried per iteration
-_SPLIT_SCREEN = 60  # best unused labels screened for them
-_SPLIT_SHARE = (0.05, 0.9)  # share of a segment a split candidate must fit better
-_PROPOSAL_LEVELS = (1.0, 2.0, 4.0)  # noise levels of a fresh hypothesis, in units of scale
 
 
 @dataclass(frozen=True)
@@ -98,18 +85,21 @@ def noise_level(residuals: np.ndarray, dof: float, floor: float, min_samples: in
     return float(max(np.sqrt(np.sum(np.square(residuals)) / (dof * spare)), floor))
 
 
-def sweep(problem: Problem, labels: np.ndarray) -> np.ndarray:
+def sweep(problem: Problem, labels: np.ndarray, settings: SolverSettings | None = None
+          ) -> np.ndarray:
     """Alpha-expansions until no move lowers the energy; labels are tried best-first.
 
     Every label in use is expanded each pass. An unused label is expanded only while its gain
     bound exceeds its label cost: its data gain, sum_p max(0, D_p(f_p) - D_p(alpha)), plus the
     rewards (negative Potts weights) of the pairs it would split (:func:`_gain_bound`). A cheap
     screen that skips the many proposals that cannot pay for themselves, so a sweep costs a few
-    moves, not one per proposal.
+    moves, not one per proposal. At most ``settings.max_passes`` passes; a pass ends after
+    ``settings.max_failed`` unused labels in a row fail to lower the energy.
     """
+    settings = settings or SolverSettings()
     unary, costs = problem.unary, problem.label_costs
     current = energy(problem, labels)
-    for _ in range(_MAX_PASSES):
+    for _ in range(settings.max_passes):
         changed = False
         tried = np.zeros(unary.shape[0], dtype=bool)
         failed = 0  # unused labels rejected in a row
@@ -121,7 +111,7 @@ def sweep(problem: Problem, labels: np.ndarray) -> np.ndarray:
                 gain = np.where(used, np.inf, _gain_bound(problem, labels) - costs)
             gain[tried] = -np.inf
             alpha = int(np.argmax(gain))
-            if not gain[alpha] > 0 or (failed >= _MAX_FAILED and not used[alpha]):
+            if not gain[alpha] > 0 or (failed >= settings.max_failed and not used[alpha]):
                 break
             tried[alpha] = True
             moved = expansion_move(problem, labels, alpha)
@@ -161,6 +151,7 @@ class _Setting:
     """What stays fixed while PEaRL runs on one set of tracks."""
 
     model: MotionModel
+    solver: SolverSettings
     data: np.ndarray  # (N, D) model data rows
     edges: np.ndarray  # (E, 2) Delaunay neighbours in the last frame
     weights: np.ndarray  # (E,) signed Potts weights (contrast.edge_weights)
@@ -274,7 +265,7 @@ def fit(
                 break
             iterations += 1
             start = time.perf_counter()
-            labels = sweep(problem, labels)
+            labels = sweep(problem, labels, setting.solver)
             timings['expand'] += time.perf_counter() - start
             start = time.perf_counter()
             _refit(setting, labels, params, sigmas, residuals, unary, bias)
@@ -416,7 +407,8 @@ def _past(deadline: float | None) -> bool:
 
 def _setting(tracks: np.ndarray, config: PearlConfig, rng: np.random.Generator,
              graph: Neighbourhood | None = None) -> _Setting:
-    model = get_model(config.model)
+    solver = config.solver
+    model = get_model(config.model, solver)
     data = model.data(tracks)  # validates tracks
     n = data.shape[0]
     if n < model.min_samples + 1:
@@ -424,20 +416,20 @@ def _setting(tracks: np.ndarray, config: PearlConfig, rng: np.random.Generator,
                          f'model {config.model!r}, got {n}')
     # Neighbours are compared over every frame given, whatever the model family.
     if graph is None:
-        graph = neighbourhood(tracks)
+        graph = neighbourhood(tracks, settings=solver)
     else:
         graph.check(n)
     edges, neighbours = graph.edges, graph.neighbours
     scale = config.noise or _estimate_scale(model, data, neighbours, config, rng)
     dof = model.residual_dof(data)
-    floor = _FLOOR * scale
+    floor = solver.sigma_floor * scale
     # A point is an outlier when its residual to a model at the fresh noise level exceeds
     # outlier_threshold of those levels.
     outlier_cost = float(data_costs(np.array([[config.outlier_threshold * scale]]),
                                     np.array([scale]), dof, floor)[0, 0])
-    stretch = long_edge_stretch(tracks, edges, neighbours, config.long_edge_growth)
+    stretch = long_edge_stretch(tracks, edges, neighbours, config.long_edge_growth, solver)
     return _Setting(
-        model=model, data=data, edges=edges,
+        model=model, solver=solver, data=data, edges=edges,
         weights=edge_weights(graph.misses, scale, config.smoothness, config.separation,
                              config.contrast, config.unit_quantile, stretch),
         neighbours=neighbours, scale=scale, floor=floor, dof=dof,
@@ -453,16 +445,17 @@ def noise_scale(tracks: np.ndarray, config: PearlConfig | None = None,
     pass it on as ``config.noise``, saving the setup cost of every fit.
     """
     config = config or PearlConfig()
-    model = get_model(config.model)
+    model = get_model(config.model, config.solver)
     data = model.data(tracks)
     anchor = np.asarray(tracks, dtype=np.float64)[-1]
-    neighbours = nearest_neighbours(anchor, NEIGHBOURS)
+    neighbours = nearest_neighbours(anchor, config.solver.image_neighbours)
     return _estimate_scale(model, data, neighbours, config, np.random.default_rng(rng))
 
 
 def _estimate_scale(model: MotionModel, data: np.ndarray, neighbours: np.ndarray,
                     config: PearlConfig, rng: np.random.Generator) -> float:
-    return max(local_scale(model, data, neighbours, rng), config.min_noise)
+    return max(local_scale(model, data, neighbours, rng, config.solver.scale_seeds),
+               config.min_noise)
 
 
 def _propose(setting: _Setting, labels: np.ndarray, params: np.ndarray, config: PearlConfig,
@@ -475,12 +468,13 @@ def _propose(setting: _Setting, labels: np.ndarray, params: np.ndarray, config: 
     samples = [mixed_samples(data.shape[0], setting.neighbours, config.num_proposals, m,
                              config.local_sampling, rng)]
     for k in range(1, params.shape[0] + 1):
-        samples.append(uniform_samples(np.flatnonzero(labels == k), _SEGMENT_SAMPLES, m, rng))
+        samples.append(uniform_samples(np.flatnonzero(labels == k),
+                                       setting.solver.segment_samples, m, rng))
     fresh, ok = model.fit_minimal(data, np.concatenate(samples))
     # A fresh hypothesis does not know its noise level yet: it is offered at several, and
     # re-estimation tightens the one that is taken.
     fresh = fresh[ok]
-    levels = setting.scale * np.asarray(_PROPOSAL_LEVELS)
+    levels = setting.scale * np.asarray(setting.solver.proposal_levels)
     params = np.repeat(fresh, levels.size, axis=0)
     sigmas = np.tile(levels, fresh.shape[0])
     residuals = np.repeat(model.residuals(data, fresh), levels.size, axis=0)
@@ -539,6 +533,7 @@ def _expand_refit(setting: _Setting, problem: Problem, labels: np.ndarray, param
     are expanded, the losing models refitted, and the move kept only if the whole energy drops.
     Arrays are updated in place, as in :func:`_refit`.
     """
+    solver = setting.solver
     idx = np.arange(labels.size)
     current = energy(problem, labels)
     used = np.zeros(unary.shape[0], dtype=bool)
@@ -552,15 +547,15 @@ def _expand_refit(setting: _Setting, problem: Problem, labels: np.ndarray, param
     size = np.bincount(labels, minlength=unary.shape[0])
     current_costs = unary[labels, idx]
     candidates = []
-    for alpha in np.argsort(-gain, kind='stable')[:_SPLIT_SCREEN]:
-        if not gain[alpha] > 0 or len(candidates) == _SPLIT_TRIES:
+    for alpha in np.argsort(-gain, kind='stable')[:solver.split_screen]:
+        if not gain[alpha] > 0 or len(candidates) == solver.split_tries:
             break
         taken = labels[(unary[alpha] < current_costs) & (labels != OUTLIER)]
         if taken.size == 0:
             continue
         counts = np.bincount(taken, minlength=unary.shape[0])
         share = counts / np.maximum(size, 1)
-        if np.any((share >= _SPLIT_SHARE[0]) & (share <= _SPLIT_SHARE[1])):
+        if np.any((share >= solver.split_share_min) & (share <= solver.split_share_max)):
             candidates.append(alpha)
     for alpha in candidates:
         # Expanded as if alpha were free: its label cost is paid, if at all, by the refits.

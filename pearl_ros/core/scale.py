@@ -18,7 +18,7 @@ def local_scale(
     data: np.ndarray,
     neighbours: np.ndarray,
     rng: np.random.Generator,
-    num_seeds: int = 60,
+    num_seeds: int,
 ) -> float:
     """Median noise level (pixels) of models fitted to image neighbourhoods.
 
@@ -33,7 +33,7 @@ def local_scale(
     data : (N, D) model data rows
     neighbours : (N, k) int, image neighbours of every point (k > min_samples)
     rng : numpy Generator
-    num_seeds : int, neighbourhoods examined
+    num_seeds : int, neighbourhoods examined (``SolverSettings.scale_seeds``)
 
     Returns
     -------

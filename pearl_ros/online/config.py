@@ -1,13 +1,28 @@
-"""Parameters of the streaming layer, and ``NAME=VALUE`` settings shared by every front end."""
+"""Parameters of the streaming layer, and ``NAME=VALUE`` settings shared by every front end.
+
+The one settings builder: :func:`parse_assignments` types ``NAME=VALUE`` strings,
+:func:`build_configs` turns a name -> value mapping (from those, a YAML file or ROS parameters)
+into :class:`~pearl_ros.core.config.PearlConfig` and :class:`OnlineConfig`. Names are the user
+parameters (:func:`user_names`) and the solver settings as ``solver.NAME``
+(:func:`solver_names`); an unknown name is refused with the closest known one.
+"""
 
 from __future__ import annotations
 
 import dataclasses
+import difflib
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 from typing import Any
 
-from pearl_ros.core.config import PearlConfig, check_fields, parameter_specs, spec
+from pearl_ros.core.config import (
+    ParameterSpec,
+    PearlConfig,
+    check_fields,
+    parameter_specs,
+    solver_specs,
+    spec,
+)
 from pearl_ros.core.errors import InputError
 
 TWO_VIEW_MODELS = ('fundamental', 'homography')
@@ -57,30 +72,76 @@ class OnlineConfig:
 
 
 CONFIG_CLASSES = (PearlConfig, OnlineConfig)
+# Solver settings are named ``solver.NAME`` wherever parameters are given by name (--set, files).
+SOLVER_PREFIX = 'solver.'
 
 
-def known_names() -> tuple[str, ...]:
-    """Every parameter name, in the order of :data:`CONFIG_CLASSES`' fields."""
+def user_names() -> tuple[str, ...]:
+    """The user parameters' names, in the order of :data:`CONFIG_CLASSES`' fields: what the ROS
+    node declares (no solver settings)."""
     return tuple(item.name for cls in CONFIG_CLASSES for item in parameter_specs(cls))
 
 
+def solver_names() -> tuple[str, ...]:
+    """The solver settings' names as given by name: ``solver.max_passes``, ..."""
+    return tuple(SOLVER_PREFIX + item.name for item in solver_specs())
+
+
+def known_names() -> tuple[str, ...]:
+    """Every name :func:`build_configs` accepts: :func:`user_names`, then :func:`solver_names`."""
+    return user_names() + solver_names()
+
+
+def unknown_parameter(name: str, known: Iterable[str] | None = None) -> InputError:
+    """The one-line error for an unknown parameter ``name``, suggesting the closest of ``known``
+    (:func:`known_names` if None): ``unknown parameter 'label_cots' (did you mean
+    'label_cost'?)``."""
+    known = known_names() if known is None else tuple(known)
+    # Compared without the solver prefix, which would make any two solver names look alike (and
+    # hides a user parameter given as a solver setting, or the other way round).
+    full = {_bare(k): k for k in reversed(known)}
+    close = difflib.get_close_matches(_bare(name), list(full), n=1)
+    hint = f' (did you mean {full[close[0]]!r}?)' if close else ''
+    return InputError(f'unknown parameter {name!r}{hint}')
+
+
+def _bare(name: str) -> str:
+    return name[len(SOLVER_PREFIX):] if name.startswith(SOLVER_PREFIX) else name
+
+
+def _spec(name: str) -> ParameterSpec | None:
+    """The spec of parameter ``name`` (a solver setting's under its ``solver.`` name)."""
+    if name.startswith(SOLVER_PREFIX):
+        specs, bare = solver_specs(), name[len(SOLVER_PREFIX):]
+    else:
+        specs, bare = tuple(i for cls in CONFIG_CLASSES for i in parameter_specs(cls)), name
+    for item in specs:
+        if item.name == bare:
+            return dataclasses.replace(item, name=name)
+    return None
+
+
 def parse_value(name: str, text: str) -> Any:
-    """The value of parameter ``name`` from its command-line ``text``."""
-    for cls in CONFIG_CLASSES:
-        for item in parameter_specs(cls):
-            if item.name != name:
-                continue
-            try:
-                if item.type is bool:
-                    lowered = text.strip().lower()
-                    if lowered not in ('true', 'false', '1', '0', 'yes', 'no'):
-                        raise ValueError(text)
-                    return lowered in ('true', '1', 'yes')
-                return item.type(text.strip()) if item.type is not str else text.strip()
-            except ValueError as err:
-                raise InputError(f'invalid value for {name}: {text!r} is not '
-                                 f'{item.type.__name__}') from err
-    raise InputError(f'unknown parameter {name!r} (known: {", ".join(known_names())})')
+    """The value of parameter ``name`` from its command-line ``text``.
+
+    A tuple setting (``solver.proposal_levels``) is written comma-separated: ``1,2,4``.
+    """
+    item = _spec(name)
+    if item is None:
+        raise unknown_parameter(name)
+    text = text.strip()
+    try:
+        if item.type is bool:
+            lowered = text.lower()
+            if lowered not in ('true', 'false', '1', '0', 'yes', 'no'):
+                raise ValueError(text)
+            return lowered in ('true', '1', 'yes')
+        if item.type is tuple:
+            return tuple(float(part) for part in text.split(','))
+        return item.type(text) if item.type is not str else text
+    except ValueError as err:
+        kind = 'comma-separated numbers' if item.type is tuple else item.type.__name__
+        raise InputError(f'invalid value for {name}: {text!r} is not {kind}') from err
 
 
 def parse_assignments(items: Iterable[str]) -> dict[str, Any]:
@@ -99,22 +160,44 @@ def build_configs(values: Mapping[str, Any], base: tuple[PearlConfig, OnlineConf
                   ) -> tuple[PearlConfig, OnlineConfig]:
     """Both configuration objects from ``values`` (parameter name -> value) over ``base``.
 
+    Names are those of :func:`known_names`: user parameters, and solver settings as
+    ``solver.NAME``, which replace those of ``base``'s ``PearlConfig.solver``. An int given for
+    a float parameter (YAML's ``label_cost: 1000``) is that float; a list for a tuple setting is
+    that tuple.
+
     Raises
     ------
     InputError
-        On an unknown name, or a value of the wrong type or out of range (naming it).
+        On an unknown name (suggesting the closest known one), or a value of the wrong type or
+        out of range (naming it).
     """
-    base = base or (PearlConfig(), OnlineConfig())
-    unknown = sorted(set(values) - set(known_names()))
-    if unknown:
-        raise InputError(f'unknown parameter {unknown[0]!r} (known: {", ".join(known_names())})')
+    config, online = base or (PearlConfig(), OnlineConfig())
+    for name in sorted(values):
+        if _spec(name) is None:
+            raise unknown_parameter(name)
+    typed = {name: _coerce(_spec(name), value) for name, value in values.items()}
+    solver = {name[len(SOLVER_PREFIX):]: value for name, value in typed.items()
+              if name.startswith(SOLVER_PREFIX)}
+    if solver:
+        try:
+            settings = dataclasses.replace(config.solver, **solver)
+        except InputError as err:  # its messages start with the field's name
+            raise InputError(f'{SOLVER_PREFIX}{err}') from err
+        config = dataclasses.replace(config, solver=settings)
     out = []
-    for config in base:
-        names = {item.name for item in parameter_specs(type(config))}
-        mine = {k: v for k, v in values.items() if k in names}
-        # An int given for a float parameter (YAML's `label_cost: 1000`) is that float.
-        for item in parameter_specs(type(config)):
-            if item.name in mine and item.type is float and type(mine[item.name]) is int:
-                mine[item.name] = float(mine[item.name])
-        out.append(dataclasses.replace(config, **mine))
+    for item in (config, online):
+        names = {spec.name for spec in parameter_specs(type(item))}
+        out.append(dataclasses.replace(item, **{k: v for k, v in typed.items() if k in names}))
     return out[0], out[1]
+
+
+def _coerce(item: ParameterSpec | None, value: Any) -> Any:
+    """``value`` as parameter ``item`` holds it: an int as a float, a list as a tuple of floats."""
+    def number(entry: Any) -> Any:
+        return float(entry) if type(entry) is int else entry
+
+    if item is not None and item.type is float:
+        return number(value)
+    if item is not None and item.type is tuple and isinstance(value, (list, tuple)):
+        return tuple(number(entry) for entry in value)
+    return value

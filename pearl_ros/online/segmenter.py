@@ -25,7 +25,7 @@ import numpy as np
 from scipy.optimize import linear_sum_assignment
 from scipy.spatial import cKDTree
 
-from pearl_ros.core.config import PearlConfig
+from pearl_ros.core.config import PearlConfig, SolverSettings
 from pearl_ros.core.errors import InputError
 from pearl_ros.core.models import get_model
 from pearl_ros.core.neighbourhood import Neighbourhood, neighbourhood
@@ -34,11 +34,6 @@ from pearl_ros.online.config import OnlineConfig
 from pearl_ros.online.window import SlidingWindow
 
 UNLABELLED = -1
-_RESCALE = 15  # frames between estimates of the noise scale
-_YOUNG_MIN_AGE = 2  # frames a young track needs for its own trajectory to label it
-_SUBSPACE_DIM = 3  # affine dimension of a rigid motion's trajectories
-_SUBSPACE_MEMBERS = 5  # fitted members a motion needs to offer its subspace to young tracks
-_RISE = 0.05  # rise of the energy per feature on a warm frame without proposals that calls them
 _TWO_VIEW = ('fundamental', 'homography')
 
 
@@ -77,7 +72,9 @@ class OnlineSegmenter:
     Parameters
     ----------
     config : PearlConfig, optional
-        The energy and the cold-start optimiser.
+        The energy and the cold-start optimiser; its ``solver`` settings also tune the
+        segmenter (``rescale_every``, ``young_min_age``, ``subspace_dim``,
+        ``subspace_members``, ``energy_rise``).
     online : OnlineConfig, optional
         Window, warm start and per-frame budget.
     """
@@ -169,11 +166,12 @@ class OnlineSegmenter:
             segments = self._fit(tracks, keys[fitted], model_name, prior, warm, start)
             motion_labels[fitted] = self._identify(segments, prior)
             young = np.setdiff1d(np.arange(keys.size), fitted)
-            tracked = young[age[young] >= _YOUNG_MIN_AGE] if model_name not in _TWO_VIEW \
-                else young[:0]
+            solver = self.config.solver
+            tracked = young[age[young] >= solver.young_min_age] \
+                if model_name not in _TWO_VIEW else young[:0]
             newborn = np.setdiff1d(young, tracked)
             motion_labels[tracked] = _nearest_subspace(coords, age, fitted,
-                                                       motion_labels[fitted], tracked)
+                                                       motion_labels[fitted], tracked, solver)
             motion_labels[newborn] = _vote(uv[seen], fitted, motion_labels[fitted], newborn,
                                            self.online.neighbours)
         else:
@@ -216,7 +214,7 @@ class OnlineSegmenter:
         previous = None
         if not propose and self._graph is not None and self._graph[0] == model_name:
             previous = self._graph[1]
-        graph = neighbourhood(tracks, keys, previous)
+        graph = neighbourhood(tracks, keys, previous, config.solver)
         self._graph = (model_name, graph)
         result = fit(tracks, config, self._rng, init=init, deadline=deadline,
                      init_cost=self.online.temporal_cost if warm else 0.0, propose=propose,
@@ -224,17 +222,19 @@ class OnlineSegmenter:
         per_feature = result.energy / max(tracks.shape[1], 1)
         if propose:
             self._quiet, self._energy_ref = 0, per_feature
-        elif per_feature > (1.0 + _RISE) * self._energy_ref:
+        elif per_feature > (1.0 + config.solver.energy_rise) * self._energy_ref:
             self._quiet = self.online.propose_every
         else:
             self._quiet += 1
         return result.labels
 
     def _scale(self, tracks: np.ndarray, config: PearlConfig) -> float:
-        """The noise scale of ``config.model``, estimated again every ``_RESCALE`` frames: it
-        changes slowly, and estimating it costs more than a warm-started fit."""
-        scale, age = self._scales.get(config.model, (0.0, _RESCALE))
-        if age >= _RESCALE:
+        """The noise scale of ``config.model``, estimated again every ``rescale_every`` frames
+        (solver settings): it changes slowly, and estimating it costs more than a warm-started
+        fit."""
+        every = config.solver.rescale_every
+        scale, age = self._scales.get(config.model, (0.0, every))
+        if age >= every:
             scale, age = noise_scale(tracks, config, self._rng), 0
         self._scales[config.model] = (scale, age + 1)
         return scale
@@ -300,7 +300,8 @@ def _span(age: np.ndarray, coverage: float) -> int:
 
 
 def _nearest_subspace(coords: np.ndarray, age: np.ndarray, fitted: np.ndarray,
-                      fitted_labels: np.ndarray, young: np.ndarray) -> np.ndarray:
+                      fitted_labels: np.ndarray, young: np.ndarray,
+                      settings: SolverSettings | None = None) -> np.ndarray:
     """Labels of ``young`` tracks (each ``age`` < the fitted span): the motion whose members'
     trajectories over the young track's own frames span the affine subspace nearest to it.
 
@@ -309,7 +310,8 @@ def _nearest_subspace(coords: np.ndarray, age: np.ndarray, fitted: np.ndarray,
     the motion's fitted members (principal components) and the track goes to the nearest. The
     motion itself, not its image neighbourhood, decides: a vote of image neighbours errs along
     every outline, where neighbours belong to another motion. A motion with fewer than
-    ``_SUBSPACE_MEMBERS`` members is not offered; -1 if none is.
+    ``settings.subspace_members`` members is not offered; -1 if none is. Subspaces are
+    ``settings.subspace_dim``-dimensional (3), fewer where the young track's frames allow fewer.
 
     Parameters
     ----------
@@ -317,11 +319,13 @@ def _nearest_subspace(coords: np.ndarray, age: np.ndarray, fitted: np.ndarray,
     age : (N,) int, frames each track holds (its newest ``age``)
     fitted, fitted_labels : (M,) int, the fitted tracks and their motion numbers (-1 outlier)
     young : (Y,) int, tracks to label, each with an ``age`` of at least 2
+    settings : SolverSettings, optional
     """
+    settings = settings or SolverSettings()
     out = np.full(young.size, UNLABELLED, dtype=np.int64)
     motions = np.unique(fitted_labels[fitted_labels != UNLABELLED])
     groups = [fitted[fitted_labels == motion] for motion in motions]
-    offered = np.array([g.size >= _SUBSPACE_MEMBERS for g in groups], dtype=bool)
+    offered = np.array([g.size >= settings.subspace_members for g in groups], dtype=bool)
     if young.size == 0 or not offered.any():
         return out
     motions = motions[offered]
@@ -339,7 +343,7 @@ def _nearest_subspace(coords: np.ndarray, age: np.ndarray, fitted: np.ndarray,
         rows = np.flatnonzero(age[young] == frames)
         points = _rows(coords[-frames:, young[rows]])  # (n, d), d = 2 * frames
         d = points.shape[1]
-        dim = min(_SUBSPACE_DIM, d - 1)
+        dim = min(settings.subspace_dim, d - 1)
         # One batched eigendecomposition for all motions; columns by increasing eigenvalue.
         _, vectors = np.linalg.eigh(scatters_all[:, -d:, -d:])
         basis = vectors[:, :, ::-1][:, :, :dim]  # (K, d, dim)

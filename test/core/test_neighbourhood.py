@@ -8,12 +8,8 @@ import pytest
 from pearl_ros.core.contrast import patch_residuals
 from pearl_ros.core.errors import InputError
 from pearl_ros.core.models import get_model
-from pearl_ros.core.neighbourhood import (
-    NEIGHBOURS,
-    delaunay_edges,
-    nearest_neighbours,
-    neighbourhood,
-)
+from pearl_ros.core.config import SolverSettings
+from pearl_ros.core.neighbourhood import delaunay_edges, nearest_neighbours, neighbourhood
 
 
 def test_nearest_neighbours_match_brute_force_and_never_include_the_point_itself():
@@ -58,7 +54,7 @@ def test_neighbourhood_is_its_parts_over_the_last_frame():
     tracks = rng.uniform(0, 200, (6, 50, 2))
     graph = neighbourhood(tracks)
     edges = delaunay_edges(tracks[-1])
-    neighbours = nearest_neighbours(tracks[-1], NEIGHBOURS)
+    neighbours = nearest_neighbours(tracks[-1], SolverSettings().image_neighbours)
     np.testing.assert_array_equal(graph.edges, edges)
     np.testing.assert_array_equal(graph.neighbours, neighbours)
     np.testing.assert_allclose(

@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from pearl_ros.core.config import SolverSettings
 from pearl_ros.core.errors import InputError
 from pearl_ros.core.models import get_model
 from pearl_ros.core.neighbourhood import nearest_neighbours
@@ -15,7 +16,7 @@ def _scale(model_name: str, tracks: np.ndarray, seed: int = 0) -> float:
     model = get_model(model_name)
     data = model.data(tracks)
     return local_scale(model, data, nearest_neighbours(tracks[-1], 10),
-                       np.random.default_rng(seed))
+                       np.random.default_rng(seed), SolverSettings().scale_seeds)
 
 
 def _plane_pair(noise: float, seed: int = 8, n: int = 400) -> np.ndarray:

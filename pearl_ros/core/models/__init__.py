@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from importlib import import_module
 
+from pearl_ros.core.config import SolverSettings
 from pearl_ros.core.errors import InputError
 from pearl_ros.core.models.base import MotionModel
 
@@ -15,13 +16,15 @@ REGISTRY: dict[str, tuple[str, str]] = {
 }
 
 
-def get_model(name: str) -> MotionModel:
-    """A new instance of the model registered as ``name``."""
+def get_model(name: str, settings: SolverSettings | None = None) -> MotionModel:
+    """A new instance of the model registered as ``name``, tuned by ``settings`` (its label cost
+    weight, refit caps; the defaults of :class:`SolverSettings` if None)."""
     try:
         module, cls = REGISTRY[name]
     except KeyError:
         raise InputError(f'unknown model {name!r}; known: {sorted(REGISTRY)}') from None
-    return getattr(import_module(module), cls)()
+    model: MotionModel = getattr(import_module(module), cls)(settings)
+    return model
 
 
 __all__ = ['REGISTRY', 'MotionModel', 'get_model']

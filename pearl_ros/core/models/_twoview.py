@@ -21,6 +21,7 @@ from typing import NamedTuple
 import numpy as np
 from scipy.optimize import least_squares
 
+from pearl_ros.core.config import SolverSettings
 from pearl_ros.core.errors import InputError
 from pearl_ros.core.models.base import check_groups, check_tracks
 
@@ -218,12 +219,22 @@ class TwoViewModel:
     squares sum to the squared Sampson distances, for LM), ``_chart`` (a local parameterisation
     of the admissible matrices around a start) and ``_admissible`` (rank test of a result).
     Parameters are ``(K, 3, 3)`` float64 matrices of unit Frobenius norm, defined up to sign.
+
+    Parameters
+    ----------
+    settings : SolverSettings, optional
+        ``lm_max_nfev`` caps each refit; a subclass reads its label cost weight from it.
     """
 
     min_samples: int
-    # Residual evaluations per LM refit: a few ms for 500 inliers, and a refit runs for every
-    # model in every PEaRL iteration. LM from the linear estimate converges in a handful of steps.
-    max_nfev: int = 50
+
+    def __init__(self, settings: SolverSettings | None = None) -> None:
+        settings = settings or SolverSettings()
+        # Residual evaluations per LM refit: a few ms for 500 inliers, and a refit runs for
+        # every model in every PEaRL iteration. LM from the linear estimate converges in a
+        # handful of steps.
+        self.max_nfev = settings.lm_max_nfev
+        self.cost_weight = self._cost_weight(settings)
 
     def data(self, tracks: np.ndarray) -> np.ndarray:
         """Rows ``[x1, y1, x2, y2]`` ``(N, 4)`` float64 pixels: first and last frame of ``tracks``.
@@ -272,8 +283,9 @@ class TwoViewModel:
         return data[groups]
 
     def label_cost_weight(self, data: np.ndarray) -> float:
-        """1: two views are one fixed amount of evidence."""
-        return 1.0
+        """The subclass's weight from the settings: two views are one fixed amount of evidence,
+        whatever the data."""
+        return self.cost_weight
 
     def residual_dof(self, data: np.ndarray) -> float:
         """1: the Sampson distance is a first-order distance to a codimension-1 variety."""
@@ -342,6 +354,10 @@ class TwoViewModel:
         return result[0]
 
     # Hooks ----------------------------------------------------------------------------------
+
+    def _cost_weight(self, settings: SolverSettings) -> float:
+        """The factor on the configured label cost, from ``settings``."""
+        raise NotImplementedError
 
     def _linear(self, rows: np.ndarray, minimal: bool) -> tuple[np.ndarray, np.ndarray]:
         """Normalised DLT per sample: rows ``(K, m, 4)`` -> ``(K, 3, 3)``, ok ``(K,)``."""

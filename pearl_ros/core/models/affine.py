@@ -16,20 +16,29 @@ from typing import ClassVar
 
 import numpy as np
 
+from pearl_ros.core.config import SolverSettings
 from pearl_ros.core.models.base import check_groups, check_tracks
 
 # A sample whose 3 difference vectors have a singular value below this share of the largest
 # spans less than 3 dimensions: its subspace is not determined.
 _RANK_TOL = 1e-6
-_REFERENCE_FRAMES = 30  # frames at which the label cost applies as configured
 
 
 class AffineSubspace:
-    """3-D affine subspaces of trajectory space; params ``(K, 2F, 4)``: mean, then basis."""
+    """3-D affine subspaces of trajectory space; params ``(K, 2F, 4)``: mean, then basis.
+
+    Parameters
+    ----------
+    settings : SolverSettings, optional
+        ``affine_reference_frames`` sets the label cost weight.
+    """
 
     name: ClassVar[str] = 'affine'
     min_samples = 4
     dim = 3
+
+    def __init__(self, settings: SolverSettings | None = None) -> None:
+        self.reference_frames = (settings or SolverSettings()).affine_reference_frames
 
     def data(self, tracks: np.ndarray) -> np.ndarray:
         """Trajectories ``(N, 2F)`` scaled by 1/sqrt(F), so distances are RMS pixels per frame."""
@@ -74,7 +83,8 @@ class AffineSubspace:
         return np.concatenate([mean[:, None], vectors[:, ::-1][:, : self.dim]], axis=1)
 
     def label_cost_weight(self, data: np.ndarray) -> float:
-        """F / 30 over F frames: the configured label cost is that of a 30-frame subspace.
+        """F / R over F frames: the configured label cost is that of an R-frame subspace
+        (R = ``SolverSettings.affine_reference_frames``, 30).
 
         Residuals are per-frame RMS distances, so a model's data gain does not grow with F by
         itself, but the motions of different bodies drift apart over time and a short window
@@ -82,7 +92,7 @@ class AffineSubspace:
         error unchanged (19.3% -> 19.7% mean) and cuts the error on the last 10 frames from 23.5%
         to 18.8% (BENCHMARKS.md).
         """
-        return data.shape[1] / 2 / _REFERENCE_FRAMES
+        return data.shape[1] / 2 / self.reference_frames
 
     def residual_dof(self, data: np.ndarray) -> float:
         """(2F - 3) / F: the residual lives in the 2F - 3 directions normal to the subspace and

@@ -24,6 +24,7 @@ from typing import ClassVar
 
 import numpy as np
 
+from pearl_ros.core.config import SolverSettings
 from pearl_ros.core.models._twoview import (
     RANK_TOL,
     Similarities,
@@ -44,12 +45,17 @@ class Fundamental(TwoViewModel):
 
     name: ClassVar[str] = 'fundamental'
     min_samples: int = 8
-    # Sampson-reweighted linear fits after the first in fit_groups (one is enough: more change
-    # the Hopkins155 scales by < 3%).
-    reweight_steps: int = 1
 
-    def label_cost_weight(self, data: np.ndarray) -> float:
-        """0.75: one epipolar constraint per point is weaker evidence than a long subspace.
+    def __init__(self, settings: SolverSettings | None = None) -> None:
+        settings = settings or SolverSettings()
+        super().__init__(settings)
+        # Sampson-reweighted linear fits after the first in fit_groups (one is enough: more
+        # change the Hopkins155 scales by < 3%).
+        self.reweight_steps = settings.fundamental_reweight_steps
+
+    def _cost_weight(self, settings: SolverSettings) -> float:
+        """``fundamental_cost_weight``, 0.75: one epipolar constraint per point is weaker
+        evidence than a long subspace.
 
         The Sampson residual measures one constraint per point (``residual_dof`` 1, against
         about 2 for a 30-frame affine subspace), so a second motion gains less data cost for
@@ -58,7 +64,7 @@ class Fundamental(TwoViewModel):
         and the 3-motion checkerboards from 13.85% to 11.68%; 0.5, 0.67 and 0.83 do worse
         (BENCHMARKS.md).
         """
-        return 0.75
+        return settings.fundamental_cost_weight
 
     def fit_groups(self, data: np.ndarray, groups: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Linear fits of F to each group, all groups at once, for measuring noise levels.

@@ -23,6 +23,7 @@ from typing import ClassVar
 
 import numpy as np
 
+from pearl_ros.core.config import SolverSettings
 from pearl_ros.core.models._twoview import (
     RANK_TOL,
     Similarities,
@@ -52,6 +53,10 @@ class Homography(TwoViewModel):
 
     name: ClassVar[str] = 'homography'
     min_samples: int = 4
+
+    def _cost_weight(self, settings: SolverSettings) -> float:
+        """``homography_cost_weight`` (1)."""
+        return settings.homography_cost_weight
 
     def _linear(self, rows: np.ndarray, minimal: bool) -> tuple[np.ndarray, np.ndarray]:
         """Normalised DLT on each of ``rows`` (K, m, 4), m >= 4, pixels (H&Z alg. 4.2).

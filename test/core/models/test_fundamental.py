@@ -351,5 +351,5 @@ def test_noise_scale_of_a_rigid_scene_is_its_pixel_noise(scene, noise):
     truth = scene(n=400, noise=noise, seed=7)
     model = Fundamental()
     level = local_scale(model, truth.data, nearest_neighbours(truth.tracks[-1], 10),
-                        np.random.default_rng(0))
+                        np.random.default_rng(0), 60)
     assert level == pytest.approx(noise, rel=0.35)
