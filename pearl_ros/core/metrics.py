@@ -14,8 +14,7 @@ import numpy as np
 from scipy.optimize import linear_sum_assignment
 
 from pearl_ros.core.errors import InputError
-
-OUTLIER = -1  # label of a point that belongs to no model
+from pearl_ros.core.labels import OUTLIER
 
 
 def _as_labels(values: object, name: str) -> np.ndarray:

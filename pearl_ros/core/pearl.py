@@ -5,8 +5,10 @@ hypothesis (a label); :func:`sweep` runs alpha-expansions (:mod:`expansion`) ove
 re-estimates every model in use from its points; both repeat while the energy
 (:mod:`energy`) goes down, and merge moves then join neighbouring segments that one model
 explains. Rounds then mix the surviving models with a fresh batch of samples, the thesis'
-remedy for too few samples (Isack, sec. 2.3.3). Label 0 inside the optimiser is the outlier
-label, with a constant cost and no label cost; the result reports it as -1.
+remedy for too few samples (Isack, sec. 2.3.3). Inside the optimiser, row ``OUTLIER_ROW`` (0)
+of the cost table stands for the outlier label, with a constant cost and no label cost, and
+model k is label k + 1; the result reports outliers as :data:`~pearl_ros.core.labels.OUTLIER`
+(-1) and models as 0..K-1.
 """
 
 from __future__ import annotations
@@ -21,12 +23,13 @@ from pearl_ros.core.contrast import edge_weights, long_edge_stretch
 from pearl_ros.core.energy import Problem, energy
 from pearl_ros.core.errors import InputError
 from pearl_ros.core.expansion import expansion_move
+from pearl_ros.core.labels import OUTLIER
 from pearl_ros.core.models import MotionModel, get_model
 from pearl_ros.core.neighbourhood import Neighbourhood, nearest_neighbours, neighbourhood
 from pearl_ros.core.proposals import mixed_samples, uniform_samples
 from pearl_ros.core.scale import local_scale
 
-OUTLIER = 0
+OUTLIER_ROW = 0  # the row of the cost table (the optimiser's label) of the outlier label
 
 
 @dataclass(frozen=True)
@@ -171,7 +174,7 @@ class _Setting:
 
     def problem(self, unary: np.ndarray) -> Problem:
         costs = np.full(unary.shape[0], self.label_cost)
-        costs[OUTLIER] = 0.0
+        costs[OUTLIER_ROW] = 0.0
         return Problem(unary, self.edges, self.weights, costs)
 
 
@@ -227,17 +230,18 @@ def fit(
 
     if not init_cost >= 0:
         raise InputError(f'init_cost must be >= 0, got {init_cost!r}')
-    prior = np.full(n, -1, dtype=np.int64)  # init segment of each point
+    prior = np.full(n, OUTLIER, dtype=np.int64)  # init segment of each point
     if init is None:
         params = np.empty((0,) + _param_shape(model, data))
         sigmas = np.empty(0)
         residuals = np.empty((0, n))
-        labels = np.full(n, OUTLIER, dtype=np.int64)
+        labels = np.full(n, OUTLIER_ROW, dtype=np.int64)
         origin = np.empty(0, dtype=np.int64)
     else:
         prior = _check_labels(init, n)
         params, sigmas, residuals, labels = _segment_models(setting, prior)
-        origin = _origins(labels, prior, params.shape[0])  # init segment of each model, or -1
+        # The init segment of each model, OUTLIER for one fitted to none.
+        origin = _origins(labels, prior, params.shape[0])
     history: list[float] = []
     iterations = 0
     for _ in range(config.rounds):
@@ -251,7 +255,7 @@ def fit(
         params = np.concatenate([params, fresh])
         sigmas = np.concatenate([sigmas, fresh_sigmas])
         residuals = np.concatenate([residuals, fresh_residuals])
-        origin = np.concatenate([origin, np.full(fresh.shape[0], -1, dtype=np.int64)])
+        origin = np.concatenate([origin, np.full(fresh.shape[0], OUTLIER, dtype=np.int64)])
         bias = _init_bias(prior, origin, init_cost)
         unary = setting.unary(residuals, sigmas)
         if init_cost:
@@ -293,7 +297,7 @@ def fit(
     if init_cost:
         unary += _init_bias(prior, origin, init_cost)
     final = energy(setting.problem(unary), labels)
-    out = np.where(labels == OUTLIER, -1, labels - 1)
+    out = np.where(labels == OUTLIER_ROW, OUTLIER, labels - 1)
     return PearlResult(out, params, sigmas, final, tuple(history), iterations, timings,
                        setting.scale)
 
@@ -334,7 +338,7 @@ def evaluate_segmentation(
     # Segment k got model inner[p] - 1 for any of its members p, if it got one.
     for k in range(num):
         members = np.flatnonzero(labels == k)
-        if members.size and inner[members[0]] != OUTLIER:
+        if members.size and inner[members[0]] != OUTLIER_ROW:
             residuals[k] = rows[inner[members[0]] - 1]
     unary = setting.unary(rows, sigmas)
     return energy(setting.problem(unary), inner), residuals
@@ -354,12 +358,12 @@ def _segment_models(setting: _Setting, labels: np.ndarray
 
     A segment too small or too degenerate for a model becomes outliers. Returns the models'
     params, noise levels and residual rows, and the labelling in the optimiser's numbering
-    (0 outlier, model k is label k + 1).
+    (``OUTLIER_ROW``, model k is label k + 1).
     """
     model, data = setting.model, setting.data
     m = model.min_samples
     num = int(labels.max()) + 1 if labels.size else 0
-    inner = np.full(data.shape[0], OUTLIER, dtype=np.int64)
+    inner = np.full(data.shape[0], OUTLIER_ROW, dtype=np.int64)
     params, sigmas, rows = [], [], []
     for k in range(num):
         members = np.flatnonzero(labels == k)
@@ -386,8 +390,8 @@ def _segment_models(setting: _Setting, labels: np.ndarray
 def _origins(labels: np.ndarray, prior: np.ndarray, num_models: int) -> np.ndarray:
     """The init segment each of the ``num_models`` models of :func:`_segment_models` was fitted
     to (its members' ``prior``)."""
-    origin = np.full(num_models, -1, dtype=np.int64)
-    inlier = labels != OUTLIER
+    origin = np.full(num_models, OUTLIER, dtype=np.int64)
+    inlier = labels != OUTLIER_ROW
     origin[labels[inlier] - 1] = prior[inlier]
     return origin
 
@@ -395,7 +399,7 @@ def _origins(labels: np.ndarray, prior: np.ndarray, num_models: int) -> np.ndarr
 def _init_bias(prior: np.ndarray, origin: np.ndarray, cost: float) -> np.ndarray:
     """Rows ``(1 + K, N)`` of the init term: ``cost`` where a point with an init segment takes
     any label but that segment's model (the outlier label and new models included)."""
-    rows = np.concatenate([[-1], origin])  # the outlier label is no segment's
+    rows = np.concatenate([[OUTLIER], origin])  # the outlier row is no segment's model
     if not cost:  # a read-only view of one zero: nothing allocated on the usual path
         return np.broadcast_to(np.zeros(1), (rows.size, prior.size))
     return cost * ((prior[None, :] >= 0) & (rows[:, None] != prior[None, :]))
@@ -512,7 +516,7 @@ def _refit(setting: _Setting, labels: np.ndarray, params: np.ndarray, sigmas: np
     (:func:`_init_bias`).
     """
     for label in np.unique(labels):
-        if label == OUTLIER:
+        if label == OUTLIER_ROW:
             continue
         members = np.flatnonzero(labels == label)
         fitted = _refit_one(setting, members, params[label - 1])
@@ -550,7 +554,7 @@ def _expand_refit(setting: _Setting, problem: Problem, labels: np.ndarray, param
     for alpha in np.argsort(-gain, kind='stable')[:solver.split_screen]:
         if not gain[alpha] > 0 or len(candidates) == solver.split_tries:
             break
-        taken = labels[(unary[alpha] < current_costs) & (labels != OUTLIER)]
+        taken = labels[(unary[alpha] < current_costs) & (labels != OUTLIER_ROW)]
         if taken.size == 0:
             continue
         counts = np.bincount(taken, minlength=unary.shape[0])
@@ -564,7 +568,7 @@ def _expand_refit(setting: _Setting, problem: Problem, labels: np.ndarray, param
         moved = expansion_move(Problem(unary, problem.edges, problem.weights, free), labels,
                                int(alpha))
         losers = np.unique(labels[moved != labels])
-        losers = losers[losers != OUTLIER]
+        losers = losers[losers != OUTLIER_ROW]
         if losers.size == 0:
             continue
         trial = unary.copy()
@@ -602,7 +606,7 @@ def _merge(setting: _Setting, problem: Problem, labels: np.ndarray, params: np.n
     p, q = problem.edges[:, 0], problem.edges[:, 1]
     while True:
         a, b = labels[p], labels[q]
-        touch = (a != b) & (a != OUTLIER) & (b != OUTLIER)
+        touch = (a != b) & (a != OUTLIER_ROW) & (b != OUTLIER_ROW)
         if not np.any(touch):
             return labels
         pairs, where = np.unique(np.sort(np.stack([a[touch], b[touch]], axis=1), axis=1),
@@ -632,12 +636,12 @@ def _merge(setting: _Setting, problem: Problem, labels: np.ndarray, params: np.n
 
 
 def _compress(labels: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Renumber the models in use by decreasing support (outliers stay 0); also returns the
-    indices of the kept models among the old ones."""
-    used = np.unique(labels[labels != OUTLIER])
+    """Renumber the models in use by decreasing support (outliers stay in ``OUTLIER_ROW``);
+    also returns the indices of the kept models among the old ones."""
+    used = np.unique(labels[labels != OUTLIER_ROW])
     support = np.array([np.count_nonzero(labels == u) for u in used], dtype=np.int64)
     used = used[np.argsort(-support, kind='stable')]
-    mapping = np.zeros(int(labels.max()) + 1, dtype=np.int64)
+    mapping = np.full(int(labels.max()) + 1, OUTLIER_ROW, dtype=np.int64)
     mapping[used] = np.arange(1, used.size + 1)
     return mapping[labels], used - 1
 

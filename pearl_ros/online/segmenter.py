@@ -27,13 +27,13 @@ from scipy.spatial import cKDTree
 
 from pearl_ros.core.config import PearlConfig, SolverSettings
 from pearl_ros.core.errors import InputError
+from pearl_ros.core.labels import OUTLIER
 from pearl_ros.core.models import get_model
 from pearl_ros.core.neighbourhood import Neighbourhood, neighbourhood
 from pearl_ros.core.pearl import fit, noise_scale
 from pearl_ros.online.config import OnlineConfig
 from pearl_ros.online.window import SlidingWindow
 
-UNLABELLED = -1
 _TWO_VIEW = ('fundamental', 'homography')
 
 
@@ -143,7 +143,7 @@ class OnlineSegmenter:
             self.reset()
 
         finite = np.all(np.isfinite(uv), axis=1)
-        labels = np.full(ids.size, UNLABELLED, dtype=np.int64)
+        labels = np.full(ids.size, OUTLIER, dtype=np.int64)
         seen = np.flatnonzero(finite)
         # Features in id order: the proposals sample by position, so that labels must not depend
         # on the order a tracker lists its features in.
@@ -155,14 +155,14 @@ class OnlineSegmenter:
         model_name = self._model_name(span)
         fitted = np.flatnonzero(age >= span) if span >= 2 else np.empty(0, dtype=np.int64)
         warm = False
-        motion_labels = np.full(keys.size, UNLABELLED, dtype=np.int64)
+        motion_labels = np.full(keys.size, OUTLIER, dtype=np.int64)
         if fitted.size > get_model(model_name).min_samples:
             tracks = coords[-span:, fitted]
             if model_name in _TWO_VIEW:
                 tracks = tracks[[0, -1]]
-            prior = np.array([self._label_of_track.get(k, UNLABELLED) for k in keys[fitted]],
+            prior = np.array([self._label_of_track.get(k, OUTLIER) for k in keys[fitted]],
                              dtype=np.int64)
-            warm = self.online.warm_start and bool(np.any(prior != UNLABELLED))
+            warm = self.online.warm_start and bool(np.any(prior != OUTLIER))
             segments = self._fit(tracks, keys[fitted], model_name, prior, warm, start)
             motion_labels[fitted] = self._identify(segments, prior)
             young = np.setdiff1d(np.arange(keys.size), fitted)
@@ -178,8 +178,8 @@ class OnlineSegmenter:
             span, model_name = 0, ''
         labels[seen] = motion_labels
         self._label_of_track = {int(k): int(v) for k, v in zip(keys, motion_labels)
-                                if v != UNLABELLED}
-        motions = np.unique(motion_labels[motion_labels != UNLABELLED]).size
+                                if v != OUTLIER}
+        motions = np.unique(motion_labels[motion_labels != OUTLIER]).size
         return FrameResult(stamp_ns, labels, int(motions), span, int(fitted.size) if span else 0,
                            model_name, reset, warm, time.perf_counter() - start)
 
@@ -200,7 +200,7 @@ class OnlineSegmenter:
                                          rounds=self.online.warm_rounds,
                                          unit_quantile=self.online.warm_unit_quantile)
             _, init = np.unique(prior, return_inverse=True)
-            init = init.reshape(-1) - int(np.any(prior == UNLABELLED))
+            init = init.reshape(-1) - int(np.any(prior == OUTLIER))
         budget = self.online.budget_ms
         deadline = start + budget / 1e3 if budget > 0 else None
         # Fresh proposals on a cold fit and on every propose_every-th warm one; the warm frames
@@ -241,16 +241,16 @@ class OnlineSegmenter:
 
     def _identify(self, segments: np.ndarray, prior: np.ndarray) -> np.ndarray:
         """Motion numbers for ``segments`` (0..K-1, -1), matched to the ``prior`` numbers."""
-        out = np.full(segments.size, UNLABELLED, dtype=np.int64)
+        out = np.full(segments.size, OUTLIER, dtype=np.int64)
         num = int(segments.max()) + 1 if segments.size else 0
         if num == 0:
             return out
-        known = prior != UNLABELLED
+        known = prior != OUTLIER
         olds, old_idx = np.unique(prior[known], return_inverse=True)
         table = np.zeros((num, olds.size), dtype=np.int64)
-        ok = known & (segments != UNLABELLED)
+        ok = known & (segments != OUTLIER)
         np.add.at(table, (segments[ok], old_idx.reshape(-1)[ok[known]]), 1)
-        number = np.full(num, UNLABELLED, dtype=np.int64)
+        number = np.full(num, OUTLIER, dtype=np.int64)  # until the segment gets its number
         if olds.size:
             rows, cols = linear_sum_assignment(table, maximize=True)
             for r, c in zip(rows, cols):
@@ -258,10 +258,10 @@ class OnlineSegmenter:
                 if 2 * table[r, c] > np.count_nonzero(segments == r):
                     number[r] = olds[c]
         for r in range(num):
-            if number[r] == UNLABELLED:
+            if number[r] == OUTLIER:
                 number[r] = self._next_label
                 self._next_label += 1
-        inlier = segments != UNLABELLED
+        inlier = segments != OUTLIER
         out[inlier] = number[segments[inlier]]
         return out
 
@@ -322,8 +322,8 @@ def _nearest_subspace(coords: np.ndarray, age: np.ndarray, fitted: np.ndarray,
     settings : SolverSettings, optional
     """
     settings = settings or SolverSettings()
-    out = np.full(young.size, UNLABELLED, dtype=np.int64)
-    motions = np.unique(fitted_labels[fitted_labels != UNLABELLED])
+    out = np.full(young.size, OUTLIER, dtype=np.int64)
+    motions = np.unique(fitted_labels[fitted_labels != OUTLIER])
     groups = [fitted[fitted_labels == motion] for motion in motions]
     offered = np.array([g.size >= settings.subspace_members for g in groups], dtype=bool)
     if young.size == 0 or not offered.any():
@@ -364,11 +364,11 @@ def _vote(uv: np.ndarray, fitted: np.ndarray, fitted_labels: np.ndarray, young: 
           k: int) -> np.ndarray:
     """Labels of the ``young`` features: the most common label among their ``k`` nearest
     labelled ``fitted`` features in the image (ties to the nearer); -1 if none is labelled."""
-    out = np.full(young.size, UNLABELLED, dtype=np.int64)
-    labelled = fitted[fitted_labels != UNLABELLED]
+    out = np.full(young.size, OUTLIER, dtype=np.int64)
+    labelled = fitted[fitted_labels != OUTLIER]
     if young.size == 0 or labelled.size == 0:
         return out
-    votes = fitted_labels[fitted_labels != UNLABELLED]
+    votes = fitted_labels[fitted_labels != OUTLIER]
     k = min(k, labelled.size)
     _, idx = cKDTree(uv[labelled]).query(uv[young], k=k)
     idx = np.asarray(idx).reshape(young.size, k)

@@ -8,6 +8,7 @@ import pytest
 from pearl_ros.core import pearl
 from pearl_ros.core.config import PearlConfig
 from pearl_ros.core.errors import InputError
+from pearl_ros.core.labels import OUTLIER
 from pearl_ros.core.metrics import misclassification
 from pearl_ros.core.neighbourhood import neighbourhood
 from pearl_ros.core.pearl import evaluate_segmentation, fit
@@ -85,13 +86,17 @@ def test_a_given_neighbourhood_is_the_one_fit_builds(affine_scene):
         fit(tracks[:, :-1], rng=7, graph=neighbourhood(tracks))
 
 
-def test_gross_outliers_get_the_outlier_label(affine_scene):
+def test_gross_outliers_get_the_outlier_label_minus_one(affine_scene):
     tracks, truth = affine_scene(sizes=(120, 90), noise=0.5, seed=8)
     rng = np.random.default_rng(0)
     bad = rng.choice(tracks.shape[1], 8, replace=False)
     tracks[:, bad] += rng.uniform(-80, 80, (tracks.shape[0], bad.size, 2))
     result = fit(tracks, rng=0)
-    assert np.mean(result.labels[bad] == -1) >= 0.75
+    # One outlier label, -1, in results; the models are 0..K-1 (the optimiser's own outlier
+    # row, 0, never shows).
+    assert OUTLIER == -1
+    assert np.mean(result.labels[bad] == OUTLIER) >= 0.75
+    assert set(np.unique(result.labels)) == {OUTLIER, *range(result.num_models)}
     good = np.setdiff1d(np.arange(truth.size), bad)
     assert misclassification(result.labels[good], truth[good]) < 0.02
 

@@ -9,6 +9,7 @@ import pytest
 
 from pearl_ros.core.config import PearlConfig
 from pearl_ros.core.errors import InputError
+from pearl_ros.core.labels import OUTLIER
 from pearl_ros.core.metrics import match_labels, misclassification
 from pearl_ros.datasets.synthetic import BodySpec, synthetic_stream
 from pearl_ros.online.config import OnlineConfig
@@ -163,22 +164,22 @@ def test_newborn_features_are_labelled_from_their_neighbours():
             assert np.all(results[t].labels[newborn] >= 0)
 
 
-def test_non_finite_features_get_minus_one_and_the_rest_are_labelled():
+def test_non_finite_features_get_the_outlier_label_and_the_rest_are_labelled():
     frames = list(synthetic_stream(150, 20, (BodySpec(0.4),), seed=5))
     seg, _ = run(frames[:-1])
     last = frames[-1]
     uv = last.uv.copy()
     uv[[0, 7]] = [np.nan, np.inf]
     result = seg.process(last.stamp_ns, last.ids, uv)
-    assert (result.labels[[0, 7]] == -1).all()
+    assert OUTLIER == -1 and (result.labels[[0, 7]] == OUTLIER).all()
     assert np.mean(result.labels >= 0) > 0.9
 
 
-def test_too_few_features_give_minus_one_without_error():
+def test_too_few_features_give_the_outlier_label_without_error():
     seg = OnlineSegmenter()
     for t in range(3):
         result = seg.process(t + 1, np.arange(3), np.zeros((3, 2)) + t)
-        assert (result.labels == -1).all() and result.motions == 0
+        assert (result.labels == OUTLIER).all() and result.motions == 0
     result = seg.process(10, np.array([], dtype=np.int64), np.empty((0, 2)))
     assert result.labels.shape == (0,)
 
