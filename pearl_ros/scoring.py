@@ -227,7 +227,8 @@ def summary_lines(summary: Summary) -> list[str]:
             else 'no labelled frame has ground truth'
         return [f'misclassification: n/a ({why})']
     lines = [
-        f'misclassification over the {summary.counted} frames with labels and ground truth: '
+        f'misclassification over the {_count(summary.counted, "frame")} with labels and ground '
+        'truth: '
         f'{percent(summary.overall).strip()} of their features,',
         f'  {percent(summary.mean).strip()} mean per frame, {percent(summary.last).strip()} on '
         'the last frame',
@@ -257,6 +258,10 @@ def label_string(labels: np.ndarray, width: int = 0) -> str:
 
 def _motions(labels: np.ndarray) -> int:
     return int(np.unique(labels[labels != OUTLIER]).size)
+
+
+def _count(number: int, noun: str) -> str:
+    return f'{number} {noun}{"" if number == 1 else "s"}'
 
 
 def _frames(indices: list[int]) -> str:

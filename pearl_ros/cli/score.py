@@ -16,6 +16,7 @@ Example::
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 import typing
 from collections.abc import Sequence
@@ -120,8 +121,8 @@ def explain(bag: Path, labels_topic: str) -> list[str]:
         lines.append(f'  {topic} ({count}): {_CONTENTS.get(topic, msgtype)}')
     lines += [
         'To look at it:',
-        f'  score it frame by frame:  pearl_score {bag}',
-        '  read it in Python (rosbags, no ROS needed):',
+        f'  score it frame by frame:  {_command(sys.argv[0], "pearl_score")} {bag}',
+        f'  read it in Python ({_command(sys.executable, "python")}; rosbags, no ROS needed):',
         *('    ' + line for line in SNIPPET.format(bag=bag, topic=labels_topic).splitlines()),
         f'  on a ROS 2 install:  ros2 bag info {bag};  ros2 bag play {bag}',
     ]
@@ -147,6 +148,14 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 1
     print('\n'.join(lines))
     return 0
+
+
+def _command(path: str, name: str) -> str:
+    """``path`` as a user in this folder types it, if it is the command ``name``; else ``name``."""
+    if not Path(path).name.startswith(name):
+        return name
+    relative = os.path.relpath(path)
+    return relative if not relative.startswith('..') else path
 
 
 def _counts(bag: Path) -> dict[str, tuple[str, int]]:

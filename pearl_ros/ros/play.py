@@ -313,8 +313,8 @@ def _play(player: Player, executor: Executor, bag: BagFeatures,
     source = 'no ground truth' if truth is None else (
         f'ground truth from {args.truth_topic}'
         + (', per frame (features change motion)' if truth.changes_over_time else ''))
-    print(f'{args.bag}: {len(bag.messages)} {bag.msg_type} messages -> {args.features}, '
-          f'labels <- {args.labels}; {source}')
+    print(f'{args.bag}: {len(bag.messages)} {bag.msg_type} messages, played into pearl_node on '
+          f'{args.features}\nlabels from {args.labels}; {source}')
     print(LEGEND, flush=True)
     rows: list[scoring.FrameScore] = []
 

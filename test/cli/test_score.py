@@ -13,11 +13,12 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from bag_oracles import raw_messages
 from rosbags.rosbag2 import StoragePlugin, Writer
 from rosbags.typesys import Stores, get_typestore
 
 from pearl_ros.cli.score import SNIPPET, main, score_bag
+
+from bag_oracles import raw_messages
 
 REPO = Path(__file__).resolve().parents[2]
 BAGS = REPO / 'bags'
