@@ -21,7 +21,8 @@ import numpy as np
 
 from pearl_ros.bagio import reader
 from pearl_ros.core.errors import InputError
-from pearl_ros.core.metrics import OUTLIER, misclassification
+from pearl_ros.core.labels import OUTLIER
+from pearl_ros.core.metrics import misclassification
 
 TRUTH_TOPIC = '/ground_truth/labels'
 LABELS_TOPIC = '/motion_labels'
