@@ -16,6 +16,8 @@ the node must be told)::
 from __future__ import annotations
 
 import argparse
+import functools
+import operator
 import sys
 import time
 import typing
@@ -173,8 +175,10 @@ class Player(Node):
         stamp = decode.stamp_ns(msg.header)
         self.answers[stamp] = Answer(stamp, ids, labels)
 
-    def wait_for_node(self, executor: Executor, timeout_s: float, settle_s: float = 0.5
-                      ) -> bool:
+    # Shadows rclpy's Node.wait_for_node(name, timeout), which the player never uses; the node
+    # tests call this one by its name.
+    def wait_for_node(self, executor: Executor, timeout_s: float,  # type: ignore[override]
+                      settle_s: float = 0.5) -> bool:
         """Spin until the node's subscription and its labels publisher are both matched, then
         ``settle_s`` more.
 
@@ -205,7 +209,8 @@ class Player(Node):
             sent = time.monotonic()
             stamp = decode.stamp_ns(msg.header)
             self.publisher.publish(msg)
-            spin_until(executor, lambda stamp=stamp: stamp in self.answers, timeout_s)
+            answered = functools.partial(operator.contains, self.answers, stamp)  # stamp in
+            spin_until(executor, answered, timeout_s)
             answer = self.answers.get(stamp)
             out.append(answer)
             if on_answer is not None:
