@@ -298,15 +298,17 @@ def _box_entry(origin: np.ndarray, rays: np.ndarray, rotation: np.ndarray, centr
                half: np.ndarray) -> np.ndarray:
     """(M, B) ray parameter s at which origin + s * ray enters box b (slab method); inf where
     the ray misses it or starts inside it."""
-    start = (origin - centre)[:, None, :] @ rotation  # (B, 1, 3), box frame
-    heading = rays @ rotation  # (B, M, 3)
+    boxes = rotation.shape[0]
+    start = np.sum((origin - centre)[:, :, None] * rotation, axis=1)  # (B, 3), box frame
+    # Every ray in every box's frame with one matrix product: (M, 3) @ (3, B * 3).
+    heading = (rays @ rotation.transpose(1, 0, 2).reshape(3, 3 * boxes)).reshape(-1, boxes, 3)
     with np.errstate(divide='ignore', invalid='ignore'):
-        low = (-half[:, None, :] - start) / heading
-        high = (half[:, None, :] - start) / heading
+        low = (-half - start) / heading
+        high = (half - start) / heading
         first, last = np.minimum(low, high), np.maximum(low, high)
         near = np.maximum(np.maximum(first[..., 0], first[..., 1]), first[..., 2])
         far = np.minimum(np.minimum(last[..., 0], last[..., 1]), last[..., 2])
-    return np.where((near <= far) & (near > 0), near, np.inf).T
+    return np.where((near <= far) & (near > 0), near, np.inf)
 
 
 class _World:
@@ -317,39 +319,58 @@ class _World:
         """``corners`` : (S * 8, 3) float64, m, the static boxes' corners."""
         self.origin = scene.camera_position[t]
         self.rotation = scene.camera_rotation[t]
-        uv, depth = scene.project(t, corners)
-        uv, depth = uv.reshape(-1, 8, 2), depth.reshape(-1, 8)
-        # Boxes in view: in front and in range, with corners on both sides of each image border
-        # (a box with a corner behind the camera is kept when one is in front).
-        ahead = (depth > 0).any(axis=1) & (depth.min(axis=1) < _MAX_DEPTH)
-        front = np.all(depth > 0, axis=1)
-        low, high = uv.min(axis=1), uv.max(axis=1)
-        overlaps = np.all((high >= 0) & (low <= [WIDTH_PX - 1, HEIGHT_PX - 1]), axis=1)
-        near = ahead & (~front | overlaps)
-        self.box_rotation = np.concatenate([scene.object_rotation[t],
-                                            scene.static_rotation[near]])
-        self.box_centre = np.concatenate([scene.object_position[t], scene.static_position[near]])
-        self.box_half = np.concatenate([scene.object_half_extents,
-                                        scene.static_half_extents[near]])
         objects = scene.object_position.shape[1]
-        self.box_body = np.concatenate([np.arange(1, objects + 1), np.zeros(near.sum(), int)])
+        moving = _corners(scene.object_rotation[t], scene.object_position[t],
+                          scene.object_half_extents).reshape(-1, 3)
+        uv, depth = scene.project(t, np.concatenate([moving, corners]))
+        uv, depth = uv.reshape(-1, 8, 2), depth.reshape(-1, 8)
+        # Static boxes that may be seen: a corner in front, within range, and an image bounding
+        # box that overlaps the image (or a corner behind the camera, where no bounding box
+        # holds).
+        front = np.all(depth > 0, axis=1)
+        low = np.where(front[:, None], uv.min(axis=1), -np.inf)
+        high = np.where(front[:, None], uv.max(axis=1), np.inf)
+        near = ((depth > 0).any(axis=1) & (depth.min(axis=1) < _MAX_DEPTH)
+                & np.all((high >= 0) & (low <= [WIDTH_PX - 1, HEIGHT_PX - 1]), axis=1))
+        near[:objects] = True
+        self.box_rotation = np.concatenate([scene.object_rotation[t], scene.static_rotation])[near]
+        self.box_centre = np.concatenate([scene.object_position[t], scene.static_position])[near]
+        self.box_half = np.concatenate([scene.object_half_extents,
+                                        scene.static_half_extents])[near]
+        self.box_low, self.box_high = low[near], high[near]
+        self.box_body = np.concatenate([np.arange(1, objects + 1),
+                                        np.zeros(near.size - objects, int)])[near]
 
     def rays(self, uv: np.ndarray) -> np.ndarray:
         """World directions (N, 3) of pixels, scaled to unit depth."""
         cam = np.column_stack([(uv - INTRINSICS[:2, 2]) / FOCAL_PX, np.ones(len(uv))])
         return cam @ self.rotation.T
 
-    def hidden(self, world: np.ndarray) -> np.ndarray:
-        """Points (N, 3) hidden behind a box (their own box's near faces included)."""
-        entry = _box_entry(self.origin, world - self.origin, self.box_rotation, self.box_centre,
-                           self.box_half)
-        return np.any(entry < 1.0 - 1e-6, axis=1)
+    def entry(self, rays: np.ndarray, uv: np.ndarray) -> np.ndarray:
+        """(N, B) parameters at which rays (N, 3) through pixels (N, 2) enter each box, inf
+        where they miss it (only pixels in a box's image bounding box are tested)."""
+        u, v = uv[:, :1], uv[:, 1:]
+        low, high = self.box_low, self.box_high
+        candidate = (u >= low[:, 0]) & (u <= high[:, 0]) & (v >= low[:, 1]) & (v <= high[:, 1])
+        rows = np.flatnonzero(candidate.any(axis=1))
+        cols = np.flatnonzero(candidate.any(axis=0))
+        entry = np.full(candidate.shape, np.inf)
+        if rows.size:
+            entry[np.ix_(rows, cols)] = _box_entry(
+                self.origin, rays[rows], self.box_rotation[cols],
+                self.box_centre[cols], self.box_half[cols])
+        return entry
+
+    def hidden(self, world: np.ndarray, uv: np.ndarray) -> np.ndarray:
+        """Points (N, 3) seen at pixels (N, 2) that a box hides (their own box's far faces
+        included)."""
+        return np.any(self.entry(world - self.origin, uv) < 1.0 - 1e-6, axis=1)
 
     def cast(self, uv: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The first surface each pixel's ray meets: world points (N, 3), depths (N,) in m (inf
         for none within range) and bodies (N,) (0 = ground or static, k = object k)."""
         rays = self.rays(uv)
-        entry = _box_entry(self.origin, rays, self.box_rotation, self.box_centre, self.box_half)
+        entry = self.entry(rays, uv)
         with np.errstate(divide='ignore'):
             ground = np.where(rays[:, 1] > 0, (CAMERA_HEIGHT_M - self.origin[1]) / rays[:, 1],
                               np.inf)
@@ -416,7 +437,7 @@ class _Tracker:
         points = self._points(t)
         uv, depth = self.scene.project(t, points)
         alive = (depth > _MIN_DEPTH) & (depth < _MAX_DEPTH) & _inside(uv)
-        alive[alive] = ~world.hidden(points[alive])
+        alive[alive] = ~world.hidden(points[alive], uv[alive])
         if t:
             alive &= self.rng.random(alive.size) >= self.death_rate
         self._retire(self.ids[~alive], t)
