@@ -12,7 +12,7 @@ import scipy.io
 from scipy.io.matlab import MatReadError
 
 from pearl_ros.core.errors import InputError
-from pearl_ros.core.metrics import OUTLIER
+from pearl_ros.core.labels import OUTLIER
 
 
 @dataclass(frozen=True)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from pearl_ros.core.errors import InputError
-from pearl_ros.core.metrics import OUTLIER
+from pearl_ros.core.labels import OUTLIER
 
 
 def add_outlier_tracks(
