@@ -1,19 +1,24 @@
 """PEaRL: Propose, Expand and Re-estimate Labels (Isack & Boykov, IJCV 2012).
 
-``fit`` composes the pure steps: :mod:`proposals` draws minimal samples, each becomes a model
-hypothesis (a label); :func:`sweep` runs alpha-expansions (:mod:`expansion`) over them; refit
-re-estimates every model in use from its points; both repeat while the energy
-(:mod:`energy`) goes down, and merge moves then join neighbouring segments that one model
-explains. Rounds then mix the surviving models with a fresh batch of samples, the thesis'
-remedy for too few samples (Isack, sec. 2.3.3). Inside the optimiser, row ``OUTLIER_ROW`` (0)
-of the cost table stands for the outlier label, with a constant cost and no label cost, and
-model k is label k + 1; the result reports outliers as :data:`~pearl_ros.core.labels.OUTLIER`
-(-1) and models as 0..K-1.
+``fit`` is a short loop over named steps, each a function of the search state (``_Search``:
+the labelling and its models) that says what it changed. Per round: :func:`_propose` draws
+minimal samples (:mod:`proposals`), each a model hypothesis (a label); then, while the energy
+(:mod:`energy`) goes down, :func:`sweep` runs alpha-expansions (:mod:`expansion`) over them,
+:func:`_refit` re-estimates every model in use from its points and :func:`_split` tries
+expansions judged after refitting the models they take points from; :func:`_merge` then joins
+neighbouring segments that one model explains. Rounds mix the surviving models with a fresh
+batch of samples, the thesis' remedy for too few samples (Isack, sec. 2.3.3).
+
+Inside the optimiser, row ``OUTLIER_ROW`` (0) of the cost table stands for the outlier label,
+with a constant cost and no label cost, and model k is label k + 1; the result reports outliers
+as :data:`~pearl_ros.core.labels.OUTLIER` (-1) and models as 0..K-1.
 """
 
 from __future__ import annotations
 
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -30,6 +35,9 @@ from pearl_ros.core.proposals import mixed_samples, uniform_samples
 from pearl_ros.core.scale import local_scale
 
 OUTLIER_ROW = 0  # the row of the cost table (the optimiser's label) of the outlier label
+
+# A model refitted by _refit_one: params, noise level (px), residual row (px), data cost row.
+_Refit = tuple[np.ndarray, float, np.ndarray, np.ndarray]
 
 
 @dataclass(frozen=True)
@@ -178,6 +186,93 @@ class _Setting:
         return Problem(unary, self.edges, self.weights, costs)
 
 
+@dataclass(eq=False)
+class _Search:
+    """What PEaRL's steps change: the labelling and the models its labels stand for.
+
+    Labels are the optimiser's: ``OUTLIER_ROW``, or k + 1 for model k. ``unary`` holds the
+    outlier row and then each model's data costs plus its fixed row of the init term,
+    ``bias`` (:func:`_init_bias`); ``problem`` holds ``unary`` itself, so a model refitted in
+    place (:meth:`adopt`) changes the energy every later step sees. Every method leaves the
+    tables consistent with the models.
+
+    Attributes
+    ----------
+    setting : _Setting
+    labels : (N,) int64, optimiser labels
+    params : (K, ...) float64, models
+    sigmas : (K,) float64, px, their noise levels
+    residuals : (K, N) float64, px, every point's residual to each model
+    origin : (K,) int64, the init segment each model stands for, OUTLIER for none
+    prior : (N,) int64, each point's init segment, OUTLIER for none
+    init_cost : float, cost units of the init term
+    """
+
+    setting: _Setting
+    labels: np.ndarray
+    params: np.ndarray
+    sigmas: np.ndarray
+    residuals: np.ndarray
+    origin: np.ndarray
+    prior: np.ndarray
+    init_cost: float
+    unary: np.ndarray = field(init=False)  # (1 + K, N)
+    bias: np.ndarray = field(init=False)  # (1 + K, N), read-only zeros without an init cost
+    problem: Problem = field(init=False)
+
+    def __post_init__(self) -> None:
+        self._tables()
+
+    def _tables(self) -> None:
+        """The cost tables of the current models, measured afresh."""
+        self.bias = _init_bias(self.prior, self.origin, self.init_cost)
+        self.unary = self.setting.unary(self.residuals, self.sigmas)
+        if self.init_cost:
+            self.unary += self.bias
+        self.problem = self.setting.problem(self.unary)
+
+    def energy(self) -> float:
+        return energy(self.problem, self.labels)
+
+    def add(self, params: np.ndarray, sigmas: np.ndarray, residuals: np.ndarray) -> None:
+        """Offer new models (labels after the current ones), standing for no init segment."""
+        self.params = np.concatenate([self.params, params])
+        self.sigmas = np.concatenate([self.sigmas, sigmas])
+        self.residuals = np.concatenate([self.residuals, residuals])
+        self.origin = np.concatenate([self.origin,
+                                      np.full(params.shape[0], OUTLIER, dtype=np.int64)])
+        self._tables()
+
+    def adopt(self, label: int, fitted: _Refit) -> None:
+        """Model ``label`` becomes a refit of :func:`_refit_one` (params, noise level, residual
+        row, data cost row)."""
+        self.params[label - 1], self.sigmas[label - 1], self.residuals[label - 1] = fitted[:3]
+        self.unary[label] = fitted[3] + self.bias[label]
+
+    def compress(self) -> None:
+        """Keep only the models in use, renumbered by decreasing support (:func:`_compress`)."""
+        self.labels, kept = _compress(self.labels)
+        self.params, self.sigmas = self.params[kept], self.sigmas[kept]
+        self.residuals, self.origin = self.residuals[kept], self.origin[kept]
+        self._tables()
+
+
+def _start(setting: _Setting, init: np.ndarray | None, init_cost: float) -> _Search:
+    """The search before the first round: the models of the ``init`` segments, each refitted to
+    its points, and their labelling; without ``init``, no model and every point an outlier."""
+    n = setting.data.shape[0]
+    if init is None:
+        return _Search(setting, labels=np.full(n, OUTLIER_ROW, dtype=np.int64),
+                       params=np.empty((0,) + _param_shape(setting.model, setting.data)),
+                       sigmas=np.empty(0), residuals=np.empty((0, n)),
+                       origin=np.empty(0, dtype=np.int64),
+                       prior=np.full(n, OUTLIER, dtype=np.int64), init_cost=init_cost)
+    prior = _check_labels(init, n)
+    params, sigmas, residuals, labels = _segment_models(setting, prior)
+    return _Search(setting, labels, params, sigmas, residuals,
+                   _origins(labels, prior, params.shape[0]), prior, init_cost)
+
+
 def fit(
     tracks: np.ndarray,
     config: PearlConfig | None = None,
@@ -222,84 +317,65 @@ def fit(
     config = config or PearlConfig()
     rng = np.random.default_rng(rng)
     timings = {'setup': 0.0, 'propose': 0.0, 'expand': 0.0, 'refit': 0.0}
-    start = time.perf_counter()
-    setting = _setting(tracks, config, rng, graph)
-    timings['setup'] = time.perf_counter() - start
-    model, data = setting.model, setting.data
-    n = data.shape[0]
-
+    with _timed(timings, 'setup'):
+        setting = _setting(tracks, config, rng, graph)
     if not init_cost >= 0:
         raise InputError(f'init_cost must be >= 0, got {init_cost!r}')
-    prior = np.full(n, OUTLIER, dtype=np.int64)  # init segment of each point
-    if init is None:
-        params = np.empty((0,) + _param_shape(model, data))
-        sigmas = np.empty(0)
-        residuals = np.empty((0, n))
-        labels = np.full(n, OUTLIER_ROW, dtype=np.int64)
-        origin = np.empty(0, dtype=np.int64)
-    else:
-        prior = _check_labels(init, n)
-        params, sigmas, residuals, labels = _segment_models(setting, prior)
-        # The init segment of each model, OUTLIER for one fitted to none.
-        origin = _origins(labels, prior, params.shape[0])
-    history: list[float] = []
+    search = _start(setting, init, init_cost)
+    history: list[float] = []  # the energy after every iteration and every round's merges
     iterations = 0
     for _ in range(config.rounds):
         if iterations and _past(deadline):
             break
-        start = time.perf_counter()
         if propose or init is None:
-            fresh, fresh_sigmas, fresh_residuals = _propose(setting, labels, params, config, rng)
-        else:
-            fresh, fresh_sigmas, fresh_residuals = params[:0], sigmas[:0], residuals[:0]
-        params = np.concatenate([params, fresh])
-        sigmas = np.concatenate([sigmas, fresh_sigmas])
-        residuals = np.concatenate([residuals, fresh_residuals])
-        origin = np.concatenate([origin, np.full(fresh.shape[0], OUTLIER, dtype=np.int64)])
-        bias = _init_bias(prior, origin, init_cost)
-        unary = setting.unary(residuals, sigmas)
-        if init_cost:
-            unary += bias
-        problem = setting.problem(unary)  # holds unary itself: _refit's updates show through
-        timings['propose'] += time.perf_counter() - start
-
-        current = energy(problem, labels)
-        for step in range(config.max_iterations):
-            if step and _past(deadline):
-                break
-            iterations += 1
-            start = time.perf_counter()
-            labels = sweep(problem, labels, setting.solver)
-            timings['expand'] += time.perf_counter() - start
-            start = time.perf_counter()
-            _refit(setting, labels, params, sigmas, residuals, unary, bias)
-            labels = _expand_refit(setting, problem, labels, params, sigmas, residuals, unary,
-                                   bias)
-            timings['refit'] += time.perf_counter() - start
-            new = energy(problem, labels)
-            history.append(new)
-            if not new < current - 1e-9:
-                break
-            current = new
+            with _timed(timings, 'propose'):
+                search.add(*_propose(search, config, rng))
+        energies = _descend(search, config.max_iterations, deadline, timings)
+        history += energies
+        iterations += len(energies)
         # Segments of one motion that no expansion joins are merged once the round settles.
-        start = time.perf_counter()
-        merged = _merge(setting, problem, labels, params, sigmas, residuals, unary, bias)
-        if merged is not labels:
-            labels = merged
-            history.append(energy(problem, labels))
-        timings['refit'] += time.perf_counter() - start
-        # Only the models in use survive into the next round (and into the result).
-        labels, kept = _compress(labels)
-        params, sigmas, residuals = params[kept], sigmas[kept], residuals[kept]
-        origin = origin[kept]
+        with _timed(timings, 'refit'):
+            if _merge(search):
+                history.append(search.energy())
+        search.compress()  # only the models in use go on (into the next round, the result)
+    return PearlResult(np.where(search.labels == OUTLIER_ROW, OUTLIER, search.labels - 1),
+                       search.params, search.sigmas, search.energy(), tuple(history),
+                       iterations, timings, setting.scale)
 
-    unary = setting.unary(residuals, sigmas)
-    if init_cost:
-        unary += _init_bias(prior, origin, init_cost)
-    final = energy(setting.problem(unary), labels)
-    out = np.where(labels == OUTLIER_ROW, OUTLIER, labels - 1)
-    return PearlResult(out, params, sigmas, final, tuple(history), iterations, timings,
-                       setting.scale)
+
+def _descend(search: _Search, max_iterations: int, deadline: float | None,
+             timings: dict[str, float]) -> list[float]:
+    """Expand and re-estimate while the energy goes down: the inner loop of a round.
+
+    Each iteration sweeps alpha-expansions over every label (:func:`sweep`), re-estimates the
+    models in use (:func:`_refit`) and tries split moves (:func:`_split`). Returns the energy
+    after each iteration run.
+    """
+    energies: list[float] = []
+    current = search.energy()
+    for step in range(max_iterations):
+        if step and _past(deadline):
+            break
+        with _timed(timings, 'expand'):
+            search.labels = sweep(search.problem, search.labels, search.setting.solver)
+        with _timed(timings, 'refit'):
+            _refit(search)
+            _split(search)
+        energies.append(search.energy())
+        if not energies[-1] < current - 1e-9:
+            break
+        current = energies[-1]
+    return energies
+
+
+@contextmanager
+def _timed(timings: dict[str, float], step: str) -> Iterator[None]:
+    """Add the seconds the ``with`` block takes to ``timings[step]``."""
+    start = time.perf_counter()
+    try:
+        yield
+    finally:
+        timings[step] += time.perf_counter() - start
 
 
 def evaluate_segmentation(
@@ -462,17 +538,18 @@ def _estimate_scale(model: MotionModel, data: np.ndarray, neighbours: np.ndarray
                config.min_noise)
 
 
-def _propose(setting: _Setting, labels: np.ndarray, params: np.ndarray, config: PearlConfig,
-             rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _propose(search: _Search, config: PearlConfig, rng: np.random.Generator
+             ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Fresh hypotheses: a batch of minimal samples, plus, once models exist, samples drawn inside
-    each segment. (A motion split between two labels is joined by the merge moves that end each
-    round, :func:`_merge`.)"""
+    each segment; their params, noise levels and residual rows. (A motion split between two
+    labels is joined by the merge moves that end each round, :func:`_merge`.)"""
+    setting = search.setting
     model, data = setting.model, setting.data
     m = model.min_samples
     samples = [mixed_samples(data.shape[0], setting.neighbours, config.num_proposals, m,
                              config.local_sampling, rng)]
-    for k in range(1, params.shape[0] + 1):
-        samples.append(uniform_samples(np.flatnonzero(labels == k),
+    for k in range(1, search.params.shape[0] + 1):
+        samples.append(uniform_samples(np.flatnonzero(search.labels == k),
                                        setting.solver.segment_samples, m, rng))
     fresh, ok = model.fit_minimal(data, np.concatenate(samples))
     # A fresh hypothesis does not know its noise level yet: it is offered at several, and
@@ -490,8 +567,7 @@ def _param_shape(model: MotionModel, data: np.ndarray) -> tuple[int, ...]:
     return model.fit_minimal(data, sample)[0].shape[1:]
 
 
-def _refit_one(setting: _Setting, members: np.ndarray, start: np.ndarray
-               ) -> tuple[np.ndarray, float, np.ndarray, np.ndarray] | None:
+def _refit_one(setting: _Setting, members: np.ndarray, start: np.ndarray) -> _Refit | None:
     """A model re-estimated from ``members``: params, noise level, residual row and data cost
     row; None when the members are too few or degenerate."""
     model = setting.model
@@ -506,51 +582,59 @@ def _refit_one(setting: _Setting, members: np.ndarray, start: np.ndarray
     return new, sigma, residuals[0], row
 
 
-def _refit(setting: _Setting, labels: np.ndarray, params: np.ndarray, sigmas: np.ndarray,
-           residuals: np.ndarray, unary: np.ndarray, bias: np.ndarray) -> None:
+def _refit(search: _Search) -> int:
     """Re-estimate every model in use, and its noise level, from its points; keep a refit only
-    if it lowers their cost.
-
-    ``params``, ``sigmas``, ``residuals`` and ``unary`` are updated in place, so the energy
-    never goes up. ``unary`` rows are data costs plus the fixed ``bias`` rows
-    (:func:`_init_bias`).
-    """
+    if it lowers their cost, so the energy never goes up. Returns the models refitted."""
+    labels, unary, bias = search.labels, search.unary, search.bias
+    refitted = 0
     for label in np.unique(labels):
         if label == OUTLIER_ROW:
             continue
         members = np.flatnonzero(labels == label)
-        fitted = _refit_one(setting, members, params[label - 1])
+        fitted = _refit_one(search.setting, members, search.params[label - 1])
         if fitted is not None and (fitted[3][members].sum()
                                    < unary[label, members].sum() - bias[label, members].sum()):
-            params[label - 1], sigmas[label - 1], residuals[label - 1] = fitted[:3]
-            unary[label] = fitted[3] + bias[label]
+            search.adopt(label, fitted)
+            refitted += 1
+    return refitted
 
 
-def _expand_refit(setting: _Setting, problem: Problem, labels: np.ndarray, params: np.ndarray,
-                  sigmas: np.ndarray, residuals: np.ndarray, unary: np.ndarray,
-                  bias: np.ndarray) -> np.ndarray:
-    """Expansion moves judged after the models that lose points are refitted to what is left.
+def _split(search: _Search) -> int:
+    """Split moves: expansions judged after the models that lose points are refitted to what is
+    left. Returns the moves kept.
 
     A plain expansion of a tight model for one motion out of a loose model that covers two is
     rejected: the loose model keeps its noise level until it is refitted, so the points left to
-    it still pay for it. Here the few most promising unused labels (by the sweep's gain bound)
+    it still pay for it. Here the few most promising unused labels (:func:`_split_candidates`)
     are expanded, the losing models refitted, and the move kept only if the whole energy drops.
-    Arrays are updated in place, as in :func:`_refit`.
     """
-    solver = setting.solver
-    idx = np.arange(labels.size)
-    current = energy(problem, labels)
+    kept = 0
+    current = search.energy()
+    for alpha in _split_candidates(search):
+        trial = _split_trial(search, alpha)
+        if trial is not None and trial[2] < current - 1e-9:
+            search.labels, refits, current = trial
+            for label, fitted in refits.items():
+                search.adopt(label, fitted)
+            kept += 1
+    return kept
+
+
+def _split_candidates(search: _Search) -> list[int]:
+    """The unused labels worth a split move, best gain bound first (at most ``split_tries`` of
+    the ``split_screen`` best)."""
+    solver, labels, unary = search.setting.solver, search.labels, search.unary
     used = np.zeros(unary.shape[0], dtype=bool)
     used[labels] = True
     # Without the label cost: the refit of the losers may pay for it.
-    gain = _gain_bound(problem, labels)
+    gain = _gain_bound(search.problem, labels)
     gain[used] = -np.inf
     # A useful split takes part of a segment, not all of it: a near copy of the segment's own
     # model has a large gain but leaves nothing to refit. Candidates are screened by the share
     # of their best-supported segment that they fit better.
     size = np.bincount(labels, minlength=unary.shape[0])
-    current_costs = unary[labels, idx]
-    candidates = []
+    current_costs = unary[labels, np.arange(labels.size)]
+    candidates: list[int] = []
     for alpha in np.argsort(-gain, kind='stable')[:solver.split_screen]:
         if not gain[alpha] > 0 or len(candidates) == solver.split_tries:
             break
@@ -560,79 +644,86 @@ def _expand_refit(setting: _Setting, problem: Problem, labels: np.ndarray, param
         counts = np.bincount(taken, minlength=unary.shape[0])
         share = counts / np.maximum(size, 1)
         if np.any((share >= solver.split_share_min) & (share <= solver.split_share_max)):
-            candidates.append(alpha)
-    for alpha in candidates:
-        # Expanded as if alpha were free: its label cost is paid, if at all, by the refits.
-        free = problem.label_costs.copy()
-        free[alpha] = 0.0
-        moved = expansion_move(Problem(unary, problem.edges, problem.weights, free), labels,
-                               int(alpha))
-        losers = np.unique(labels[moved != labels])
-        losers = losers[losers != OUTLIER_ROW]
-        if losers.size == 0:
-            continue
-        trial = unary.copy()
-        refits = {}
-        # The new model is refitted to what it took too, like the losers to what they kept.
-        for label in (*losers, alpha):
-            members = np.flatnonzero(moved == label)
-            fitted = _refit_one(setting, members, params[label - 1]) if members.size else None
-            if fitted is not None:
-                refits[label] = fitted
-                trial[label] = fitted[3] + bias[label]
-        moved_energy = energy(Problem(trial, problem.edges, problem.weights,
-                                      problem.label_costs), moved)
-        if moved_energy < current - 1e-9:
-            labels, current = moved, moved_energy
-            for label, fitted in refits.items():
-                params[label - 1], sigmas[label - 1], residuals[label - 1] = fitted[:3]
-                unary[label] = fitted[3] + bias[label]
-    return labels
+            candidates.append(int(alpha))
+    return candidates
 
 
-def _merge(setting: _Setting, problem: Problem, labels: np.ndarray, params: np.ndarray,
-           sigmas: np.ndarray, residuals: np.ndarray, unary: np.ndarray,
-           bias: np.ndarray) -> np.ndarray:
-    """Merge moves: two neighbouring segments become one, its model refitted to both.
+def _split_trial(search: _Search, alpha: int
+                 ) -> tuple[np.ndarray, dict[int, _Refit], float] | None:
+    """The split move of ``alpha``: the labelling, the refits of the losers and of ``alpha``
+    (label -> :func:`_refit_one` result) and the energy with them; None if no model loses."""
+    labels, unary, problem = search.labels, search.unary, search.problem
+    # Expanded as if alpha were free: its label cost is paid, if at all, by the refits.
+    free = problem.label_costs.copy()
+    free[alpha] = 0.0
+    moved = expansion_move(Problem(unary, problem.edges, problem.weights, free), labels, alpha)
+    losers = np.unique(labels[moved != labels])
+    losers = losers[losers != OUTLIER_ROW]
+    if losers.size == 0:
+        return None
+    trial = unary.copy()
+    refits: dict[int, _Refit] = {}
+    # The new model is refitted to what it took too, like the losers to what they kept.
+    for label in (*losers, alpha):
+        members = np.flatnonzero(moved == label)
+        fitted = (_refit_one(search.setting, members, search.params[label - 1])
+                  if members.size else None)
+        if fitted is not None:
+            refits[label] = fitted
+            trial[label] = fitted[3] + search.bias[label]
+    moved_energy = energy(Problem(trial, problem.edges, problem.weights, problem.label_costs),
+                          moved)
+    return moved, refits, moved_energy
+
+
+def _merge(search: _Search) -> int:
+    """Merge moves: two neighbouring segments become one, its model refitted to both. Returns
+    the merges made.
 
     An expansion cannot merge two segments of one motion when neither model fits the other's
     points, and the model of their union is not among the proposals: one motion stays cut in
     two though one model of both lowers the energy. Each pair of segments that share a
     neighbour edge is tried, the larger keeping its label; the best merge that lowers the energy
-    is made, and the pairs are tried again. Arrays are updated in place, as in :func:`_refit`;
-    ``labels`` itself is returned when no merge pays.
+    is made (:func:`_best_merge`), and the pairs are tried again.
     """
-    idx = np.arange(labels.size)
-    p, q = problem.edges[:, 0], problem.edges[:, 1]
-    while True:
-        a, b = labels[p], labels[q]
-        touch = (a != b) & (a != OUTLIER_ROW) & (b != OUTLIER_ROW)
-        if not np.any(touch):
-            return labels
-        pairs, where = np.unique(np.sort(np.stack([a[touch], b[touch]], axis=1), axis=1),
-                                 axis=0, return_inverse=True)
-        # The weights of the edges each merge would no longer cut.
-        uncut = np.bincount(where.reshape(-1), weights=problem.weights[touch],
-                            minlength=pairs.shape[0])
-        size = np.bincount(labels, minlength=unary.shape[0])
-        current_costs = unary[labels, idx]
-        best, best_delta = None, -1e-9
-        for (x, y), freed in zip(pairs, uncut):
-            keep, drop = (x, y) if size[x] >= size[y] else (y, x)
-            members = np.flatnonzero((labels == keep) | (labels == drop))
-            fitted = _refit_one(setting, members, params[keep - 1])
-            if fitted is None:
-                continue
-            delta = (fitted[3][members].sum() + bias[keep, members].sum()
-                     - current_costs[members].sum() - freed - problem.label_costs[drop])
-            if delta < best_delta:
-                best, best_delta = (keep, drop, fitted), delta
-        if best is None:
-            return labels
+    merges = 0
+    while (best := _best_merge(search)) is not None:
         keep, drop, fitted = best
-        labels = np.where(labels == drop, keep, labels)
-        params[keep - 1], sigmas[keep - 1], residuals[keep - 1] = fitted[:3]
-        unary[keep] = fitted[3] + bias[keep]
+        search.labels = np.where(search.labels == drop, keep, search.labels)
+        search.adopt(keep, fitted)
+        merges += 1
+    return merges
+
+
+def _best_merge(search: _Search) -> tuple[int, int, _Refit] | None:
+    """The merge that lowers the energy most: the label kept, the label dropped and the kept
+    model's refit to both segments; None if no merge lowers it."""
+    labels, unary, problem = search.labels, search.unary, search.problem
+    p, q = problem.edges[:, 0], problem.edges[:, 1]
+    a, b = labels[p], labels[q]
+    touch = (a != b) & (a != OUTLIER_ROW) & (b != OUTLIER_ROW)
+    if not np.any(touch):
+        return None
+    pairs, where = np.unique(np.sort(np.stack([a[touch], b[touch]], axis=1), axis=1),
+                             axis=0, return_inverse=True)
+    # The weights of the edges each merge would no longer cut.
+    uncut = np.bincount(where.reshape(-1), weights=problem.weights[touch],
+                        minlength=pairs.shape[0])
+    size = np.bincount(labels, minlength=unary.shape[0])
+    current_costs = unary[labels, np.arange(labels.size)]
+    best: tuple[int, int, _Refit] | None = None
+    best_delta = -1e-9
+    for (x, y), freed in zip(pairs, uncut):
+        keep, drop = (x, y) if size[x] >= size[y] else (y, x)
+        members = np.flatnonzero((labels == keep) | (labels == drop))
+        fitted = _refit_one(search.setting, members, search.params[keep - 1])
+        if fitted is None:
+            continue
+        delta = (fitted[3][members].sum() + search.bias[keep, members].sum()
+                 - current_costs[members].sum() - freed - problem.label_costs[drop])
+        if delta < best_delta:
+            best, best_delta = (keep, drop, fitted), delta
+    return best
 
 
 def _compress(labels: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

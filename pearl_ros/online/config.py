@@ -184,11 +184,14 @@ def build_configs(values: Mapping[str, Any], base: tuple[PearlConfig, OnlineConf
         except InputError as err:  # its messages start with the field's name
             raise InputError(f'{SOLVER_PREFIX}{err}') from err
         config = dataclasses.replace(config, solver=settings)
-    out = []
-    for item in (config, online):
-        names = {spec.name for spec in parameter_specs(type(item))}
-        out.append(dataclasses.replace(item, **{k: v for k, v in typed.items() if k in names}))
-    return out[0], out[1]
+    return (dataclasses.replace(config, **_own(typed, PearlConfig)),
+            dataclasses.replace(online, **_own(typed, OnlineConfig)))
+
+
+def _own(values: Mapping[str, Any], cls: type) -> dict[str, Any]:
+    """The entries of ``values`` that are user parameters of ``cls``."""
+    names = {item.name for item in parameter_specs(cls)}
+    return {name: value for name, value in values.items() if name in names}
 
 
 def _coerce(item: ParameterSpec | None, value: Any) -> Any:
