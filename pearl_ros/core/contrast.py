@@ -80,10 +80,12 @@ def patch_residuals(data: np.ndarray, edges: np.ndarray, neighbours: np.ndarray,
         offset = data[other] - mean[owner]
         along = np.einsum('ejd,ed->ej', basis[owner], offset)
         sq = np.einsum('ed,ed->e', offset, offset) - np.einsum('ej,ej->e', along, along)
-        return np.sqrt(np.maximum(sq, 0.0))
+        distance: np.ndarray = np.sqrt(np.maximum(sq, 0.0))
+        return distance
 
     p, q = edges[:, 0], edges[:, 1]
-    return 0.5 * (miss(p, q) + miss(q, p))
+    both: np.ndarray = 0.5 * (miss(p, q) + miss(q, p))
+    return both
 
 
 def edge_weights(residuals: np.ndarray, scale: float, smoothness: float, separation: float,
@@ -100,7 +102,8 @@ def edge_weights(residuals: np.ndarray, scale: float, smoothness: float, separat
     ``contrast`` in units; ``quantile`` is ``PearlConfig.unit_quantile``; ``stretch`` (E,) >= 1
     multiplies each edge's unit (:func:`long_edge_stretch`).
     """
-    unit = max(scale, float(np.quantile(residuals, quantile))) if residuals.size else scale
+    unit: float | np.ndarray = (max(scale, float(np.quantile(residuals, quantile)))
+                                if residuals.size else scale)
     if stretch is not None:
         unit = unit * stretch
     alike = np.exp(-np.square(residuals / (contrast * unit)))
@@ -166,4 +169,5 @@ def _spread(rows: np.ndarray, groups: np.ndarray, dim: int) -> np.ndarray:
     points = rows[groups]
     centred = points - points.mean(axis=1, keepdims=True)
     values = np.linalg.svd(centred, compute_uv=False)
-    return np.sqrt(np.sum(np.square(values[:, dim:]), axis=1) / groups.shape[1])
+    spread: np.ndarray = np.sqrt(np.sum(np.square(values[:, dim:]), axis=1) / groups.shape[1])
+    return spread

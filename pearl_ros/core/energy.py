@@ -2,8 +2,9 @@
 
     E(f) = sum_p D_p(f_p) + sum_{(p,q) in N} w_pq [f_p != f_q] + sum_{l in f} h_l
 
-(Isack & Boykov, IJCV 2012, eq. 1; label costs h after Delong et al., IJCV 2012). Labels are rows of
-the unary table ``unary`` (L, N); the weights ``w`` already hold the smoothness factor lambda.
+(Isack & Boykov, IJCV 2012, eq. 1; label costs h after Delong et al., IJCV 2012). Labels are
+rows of the unary table ``unary`` (L, N); the weights ``w`` already hold the smoothness factor
+lambda.
 """
 
 from __future__ import annotations

@@ -1,4 +1,6 @@
-"""Alpha-expansion with Potts smoothness and label costs (Delong, Osokin, Isack & Boykov, IJCV 2012).
+"""Alpha-expansion with Potts smoothness and label costs.
+
+After Delong, Osokin, Isack & Boykov, IJCV 2012.
 
 One move lets every point either keep its label or switch to ``alpha``; the optimal move is a
 minimum s-t cut. Side convention, used throughout: a node on the SINK side has x = 1, "switch to
@@ -30,7 +32,8 @@ def expansion_move(problem: Problem, labels: np.ndarray, alpha: int) -> np.ndarr
     src = cost_switch  # paid when x_p = 1
     snk = cost_keep.copy()  # paid when x_p = 0
 
-    # Pairwise Potts terms E(x_p, x_q) = A + (C - A) x_p + (D - C) x_q + (B + C - A - D)(1 - x_p) x_q
+    # Pairwise Potts terms
+    #   E(x_p, x_q) = A + (C - A) x_p + (D - C) x_q + (B + C - A - D)(1 - x_p) x_q
     # with A = E00, B = E01, C = E10, D = E11 = 0 (Kolmogorov & Zabih 2004).
     p, q = problem.edges[:, 0], problem.edges[:, 1]
     w = problem.weights
@@ -68,7 +71,7 @@ def expansion_move(problem: Problem, labels: np.ndarray, alpha: int) -> np.ndarr
     order = np.argsort(labels, kind='stable')
     starts = np.searchsorted(labels[order], paid)
     ends = np.searchsorted(labels[order], paid, side='right')
-    members = [order[s:e] for s, e in zip(starts, ends)]
+    members = [order[s:e] for s, e in zip(starts, ends, strict=True)]
     num_edges = p.size + sum(m.size for m in members) + (n if new_alpha else 0)
 
     graph = maxflow.Graph[float](n + num_aux, num_edges)
@@ -77,7 +80,7 @@ def expansion_move(problem: Problem, labels: np.ndarray, alpha: int) -> np.ndarr
     graph.add_edges(nodes[p[keep]], nodes[q[keep]], pair[keep], np.zeros(int(keep.sum())))
     aux_src = np.zeros(num_aux)
     aux_snk = np.zeros(num_aux)
-    for k, (label, pts) in enumerate(zip(paid, members)):
+    for k, (label, pts) in enumerate(zip(paid, members, strict=True)):
         aux_snk[k] = costs[label]
         # x_p = 0 (source side) with y_l = 1 (sink side) would cut p -> y_l: forbidden.
         graph.add_edges(pts, np.full(pts.size, n + k), np.full(pts.size, big), np.zeros(pts.size))

@@ -93,7 +93,7 @@ def match_labels(pred: object, truth: object) -> dict[int, int]:
     if table.size == 0:
         return {}
     rows, cols = linear_sum_assignment(table, maximize=True)
-    return {int(pred_labels[r]): int(true_labels[c]) for r, c in zip(rows, cols)}
+    return {int(pred_labels[r]): int(true_labels[c]) for r, c in zip(rows, cols, strict=True)}
 
 
 def relabel_to_truth(pred: object, truth: object) -> np.ndarray:

@@ -109,4 +109,5 @@ def nearest_neighbours(points: np.ndarray, k: int) -> np.ndarray:
     # it; then the k+1 results hold it anywhere, or (among many coincident points) not at all.
     not_self = idx != np.arange(n)[:, None]
     keep = not_self & (np.cumsum(not_self, axis=1) <= k)
-    return idx[keep].reshape(n, k).astype(np.int64)
+    nearest: np.ndarray = idx[keep].reshape(n, k).astype(np.int64)
+    return nearest

@@ -80,7 +80,9 @@ def data_costs(residuals: np.ndarray, sigmas: np.ndarray, dof: float, floor: flo
     the background. Every sigma_l >= floor, so every cost is >= 0, as graph capacities must be.
     """
     sigmas = np.asarray(sigmas, dtype=np.float64)[:, None]
-    return np.square(residuals) / np.square(sigmas) + 2.0 * dof * np.log(sigmas / floor)
+    costs: np.ndarray = (np.square(residuals) / np.square(sigmas)
+                         + 2.0 * dof * np.log(sigmas / floor))
+    return costs
 
 
 def noise_level(residuals: np.ndarray, dof: float, floor: float, min_samples: int) -> float | None:
@@ -147,7 +149,7 @@ def _gain_bound(problem: Problem, labels: np.ndarray) -> np.ndarray:
     """
     unary = problem.unary
     current = unary[labels, np.arange(labels.size)]
-    gain = np.maximum(current[None, :] - unary, 0.0).sum(axis=1)
+    gain: np.ndarray = np.maximum(current[None, :] - unary, 0.0).sum(axis=1)
     p, q = problem.edges[:, 0], problem.edges[:, 1]
     paying = (problem.weights < 0) & (labels[p] == labels[q])
     if np.any(paying):
@@ -478,7 +480,8 @@ def _init_bias(prior: np.ndarray, origin: np.ndarray, cost: float) -> np.ndarray
     rows = np.concatenate([[OUTLIER], origin])  # the outlier row is no segment's model
     if not cost:  # a read-only view of one zero: nothing allocated on the usual path
         return np.broadcast_to(np.zeros(1), (rows.size, prior.size))
-    return cost * ((prior[None, :] >= 0) & (rows[:, None] != prior[None, :]))
+    bias: np.ndarray = cost * ((prior[None, :] >= 0) & (rows[:, None] != prior[None, :]))
+    return bias
 
 
 def _past(deadline: float | None) -> bool:
@@ -713,7 +716,7 @@ def _best_merge(search: _Search) -> tuple[int, int, _Refit] | None:
     current_costs = unary[labels, np.arange(labels.size)]
     best: tuple[int, int, _Refit] | None = None
     best_delta = -1e-9
-    for (x, y), freed in zip(pairs, uncut):
+    for (x, y), freed in zip(pairs, uncut, strict=True):
         keep, drop = (x, y) if size[x] >= size[y] else (y, x)
         members = np.flatnonzero((labels == keep) | (labels == drop))
         fitted = _refit_one(search.setting, members, search.params[keep - 1])

@@ -22,7 +22,8 @@ def uniform_samples(pool: np.ndarray, num: int, m: int, rng: np.random.Generator
 def local_samples(
     neighbours: np.ndarray, num: int, m: int, rng: np.random.Generator
 ) -> np.ndarray:
-    """``(num, m)`` rows: a random seed point and ``m - 1`` distinct of its ``neighbours`` (N, k)."""
+    """``(num, m)`` rows: a random seed point and ``m - 1`` distinct of its ``neighbours``
+    ``(N, k)``."""
     n, k = neighbours.shape
     if k < m - 1 or num <= 0:
         return np.empty((0, m), dtype=np.int64)

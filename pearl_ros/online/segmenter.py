@@ -177,7 +177,7 @@ class OnlineSegmenter:
         else:
             span, model_name = 0, ''
         labels[seen] = motion_labels
-        self._label_of_track = {int(k): int(v) for k, v in zip(keys, motion_labels)
+        self._label_of_track = {int(k): int(v) for k, v in zip(keys, motion_labels, strict=True)
                                 if v != OUTLIER}
         motions = np.unique(motion_labels[motion_labels != OUTLIER]).size
         return FrameResult(stamp_ns, labels, int(motions), span, int(fitted.size) if span else 0,
@@ -253,7 +253,7 @@ class OnlineSegmenter:
         number = np.full(num, OUTLIER, dtype=np.int64)  # until the segment gets its number
         if olds.size:
             rows, cols = linear_sum_assignment(table, maximize=True)
-            for r, c in zip(rows, cols):
+            for r, c in zip(rows, cols, strict=True):
                 # Keep a number only for a segment made mostly of tracks that carried it.
                 if 2 * table[r, c] > np.count_nonzero(segments == r):
                     number[r] = olds[c]
@@ -333,7 +333,7 @@ def _nearest_subspace(coords: np.ndarray, age: np.ndarray, fitted: np.ndarray,
     # last frames are their trailing entries and bottom-right block (centring is per coordinate).
     span = int(age[fitted].min())
     means, scatters = [], []
-    for members in (g for g, ok in zip(groups, offered) if ok):
+    for members in (g for g, ok in zip(groups, offered, strict=True) if ok):
         trajectories = _rows(coords[-span:, members])
         mean = trajectories.mean(axis=0)
         means.append(mean)
@@ -376,4 +376,5 @@ def _vote(uv: np.ndarray, fitted: np.ndarray, fitted_labels: np.ndarray, young: 
     # How often each neighbour's label occurs in its row; the first position with the highest
     # count holds the most common label, the nearer one on a tie.
     counts = np.count_nonzero(near[:, :, None] == near[:, None, :], axis=2)
-    return near[np.arange(young.size), np.argmax(counts, axis=1)]
+    voted: np.ndarray = near[np.arange(young.size), np.argmax(counts, axis=1)]
+    return voted

@@ -23,17 +23,17 @@ def brute_force_misclassification(pred: list[int], truth: list[int]) -> float:
     best = 0
     if len(pred_groups) <= len(true_groups):
         pairings = (
-            dict(zip(pred_groups, image))
+            dict(zip(pred_groups, image, strict=True))
             for image in itertools.permutations(true_groups, len(pred_groups))
         )
     else:
         pairings = (
-            dict(zip(chosen, true_groups))
+            dict(zip(chosen, true_groups, strict=True))
             for chosen in itertools.permutations(pred_groups, len(true_groups))
         )
     for pairing in pairings:
         right = 0
-        for p, t in zip(pred, truth):
+        for p, t in zip(pred, truth, strict=True):
             if p == -1:
                 right += t == -1
             else:

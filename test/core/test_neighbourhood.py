@@ -5,10 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from pearl_ros.core.config import SolverSettings
 from pearl_ros.core.contrast import patch_residuals
 from pearl_ros.core.errors import InputError
 from pearl_ros.core.models import get_model
-from pearl_ros.core.config import SolverSettings
 from pearl_ros.core.neighbourhood import delaunay_edges, nearest_neighbours, neighbourhood
 
 

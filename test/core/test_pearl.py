@@ -1,4 +1,4 @@
-"""PEaRL on scenes with known motions: accuracy, monotone energy, label-cost flips, input checks."""
+"""PEaRL on scenes with known motions: accuracy, monotone energy, label-cost flips, bad input."""
 
 from __future__ import annotations
 

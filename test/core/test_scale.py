@@ -41,7 +41,7 @@ def test_batched_affine_fits_are_the_refits(affine_scene):
     groups = np.random.default_rng(1).integers(0, 250, (20, 11))
     params, ok = model.fit_groups(data, groups)
     assert ok.all()
-    for group, batched in zip(groups, params):
+    for group, batched in zip(groups, params, strict=True):
         one = model.refit(data, group, None)
         np.testing.assert_allclose(model.residuals(data, batched[None]),
                                    model.residuals(data, one[None]), atol=1e-8)

@@ -103,8 +103,8 @@ def test_feature_order_does_not_change_the_labels_of_a_feature():
                                             truth=f.truth[order]))
     _, plain = run(frames)
     _, other = run(shuffled)
-    for f, g, a, b in zip(frames, shuffled, plain, other):
-        by_id = dict(zip(f.ids.tolist(), a.labels.tolist()))
+    for f, g, a, b in zip(frames, shuffled, plain, other, strict=True):
+        by_id = dict(zip(f.ids.tolist(), a.labels.tolist(), strict=True))
         assert [by_id[i] for i in g.ids.tolist()] == b.labels.tolist()
 
 
@@ -250,7 +250,7 @@ def test_same_seed_same_frames_same_labels():
     online = OnlineConfig(budget_ms=0.0)
     _, a = run(frames, OnlineSegmenter(online=online))
     _, b = run(frames, OnlineSegmenter(online=online))
-    assert all(x.labels.tolist() == y.labels.tolist() for x, y in zip(a, b))
+    assert all(x.labels.tolist() == y.labels.tolist() for x, y in zip(a, b, strict=True))
 
 
 @pytest.mark.parametrize('model', ['fundamental', 'homography'])

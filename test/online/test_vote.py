@@ -9,7 +9,8 @@ from pearl_ros.online.segmenter import _vote
 
 
 def _brute_force(uv, fitted, fitted_labels, young, k):
-    labelled = [(int(p), int(lab)) for p, lab in zip(fitted, fitted_labels) if lab != -1]
+    labelled = [(int(p), int(lab)) for p, lab in zip(fitted, fitted_labels, strict=True)
+                if lab != -1]
     out = []
     for y in young:
         if not labelled:

@@ -191,15 +191,18 @@ def refine_lm(residuals_of: Callable[[np.ndarray], np.ndarray], start: np.ndarra
     """
 
     def fun(p: np.ndarray) -> np.ndarray:
-        return residuals_of(p[None])[0]
+        row: np.ndarray = residuals_of(p[None])[0]
+        return row
 
     def jac(p: np.ndarray) -> np.ndarray:
         step = _FD_STEP * np.maximum(1.0, np.abs(p))
         batch = np.vstack([p, p + np.diag(step)])
         r = residuals_of(batch)
-        return ((r[1:] - r[0]) / step[:, None]).T
+        jacobian: np.ndarray = ((r[1:] - r[0]) / step[:, None]).T
+        return jacobian
 
-    return least_squares(fun, start, jac=jac, method='lm', max_nfev=max_nfev).x
+    found: np.ndarray = least_squares(fun, start, jac=jac, method='lm', max_nfev=max_nfev).x
+    return found
 
 
 class Similarities(NamedTuple):
@@ -280,7 +283,8 @@ class TwoViewModel:
         data = check_data(data)
         groups = check_groups(groups, self.min_samples)
         check_inliers(groups.reshape(-1), data.shape[0])
-        return data[groups]
+        rows: np.ndarray = data[groups]
+        return rows
 
     def label_cost_weight(self, data: np.ndarray) -> float:
         """The subclass's weight from the settings: two views are one fixed amount of evidence,
@@ -351,7 +355,8 @@ class TwoViewModel:
         result, ok = unit_frobenius(result)
         if not (ok[0] and self._admissible(result[0], sims)):
             return None
-        return result[0]
+        matrix: np.ndarray = result[0]
+        return matrix
 
     # Hooks ----------------------------------------------------------------------------------
 

@@ -45,7 +45,8 @@ class AffineSubspace:
         tracks = check_tracks(tracks, min_frames=2)
         num_frames, num_points, _ = tracks.shape
         rows = np.transpose(tracks, (1, 0, 2)).reshape(num_points, 2 * num_frames)
-        return rows / np.sqrt(num_frames)
+        scaled: np.ndarray = rows / np.sqrt(num_frames)
+        return scaled
 
     def fit_minimal(self, data: np.ndarray, samples: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         pts = data[samples]  # (K, 4, D)
@@ -67,7 +68,8 @@ class AffineSubspace:
         basis = np.transpose(vt[:, : self.dim, :], (0, 2, 1))
         return np.concatenate([mean[:, :, None], basis], axis=2), ok
 
-    def refit(self, data: np.ndarray, inliers: np.ndarray, params: np.ndarray) -> np.ndarray | None:
+    def refit(self, data: np.ndarray, inliers: np.ndarray,
+              params: np.ndarray) -> np.ndarray | None:
         """Least-squares subspace of the inliers (principal components): optimal for sum r^2."""
         pts = data[inliers]
         if pts.shape[0] < self.min_samples:
@@ -92,12 +94,13 @@ class AffineSubspace:
         error unchanged (19.3% -> 19.7% mean) and cuts the error on the last 10 frames from 23.5%
         to 18.8% (BENCHMARKS.md).
         """
-        return data.shape[1] / 2 / self.reference_frames
+        frames: int = data.shape[1] // 2
+        return frames / self.reference_frames
 
     def residual_dof(self, data: np.ndarray) -> float:
         """(2F - 3) / F: the residual lives in the 2F - 3 directions normal to the subspace and
         r^2 is its squared length divided by F."""
-        dims = data.shape[1]
+        dims: int = data.shape[1]
         return (dims - self.dim) / (dims / 2)
 
     def residuals(self, data: np.ndarray, params: np.ndarray) -> np.ndarray:
@@ -111,9 +114,11 @@ class AffineSubspace:
         # ||x - m||^2 - ||B^T (x - m)||^2, expanded so that no (K, N, D) array is formed and the
         # heavy products are matrix products (BLAS).
         x_sq = np.einsum('nd,nd->n', data, data)
-        dist_sq = x_sq[None, :] - 2.0 * (mean @ data.T) + np.einsum('kd,kd->k', mean, mean)[:, None]
+        dist_sq = (x_sq[None, :] - 2.0 * (mean @ data.T)
+                   + np.einsum('kd,kd->k', mean, mean)[:, None])
         flat = np.transpose(basis, (1, 0, 2)).reshape(dims, num * self.dim)  # (D, K*3)
         proj = (data @ flat).reshape(-1, num, self.dim)  # (N, K, 3)
         proj -= np.einsum('kdj,kd->kj', basis, mean)[None, :, :]
         dist_sq -= np.einsum('nkj,nkj->kn', proj, proj)
-        return np.sqrt(np.maximum(dist_sq, 0.0))
+        distance: np.ndarray = np.sqrt(np.maximum(dist_sq, 0.0))
+        return distance

@@ -53,7 +53,8 @@ class MotionModel(Protocol):
         """
         ...
 
-    def refit(self, data: np.ndarray, inliers: np.ndarray, params: np.ndarray) -> np.ndarray | None:
+    def refit(self, data: np.ndarray, inliers: np.ndarray,
+              params: np.ndarray) -> np.ndarray | None:
         """Re-estimate one hypothesis from its ``inliers`` (int indices), starting at ``params``.
 
         Returns the new params (shape of one hypothesis) or None when the inliers are degenerate.

@@ -166,7 +166,8 @@ class Fundamental(TwoViewModel):
             right = _rotations(p[:, 3:6]) @ v2
             singular = np.stack([np.ones(p.shape[0]), p[:, 6]], axis=1)  # (B, 2)
             fn = (left * singular[:, None, :]) @ np.swapaxes(right, 1, 2)
-            return sims.T2.T @ fn @ sims.T1
+            pixels: np.ndarray = sims.T2.T @ fn @ sims.T1
+            return pixels
 
         return start, matrices_of
 
@@ -187,4 +188,5 @@ def _rotations(w: np.ndarray) -> np.ndarray:
     skew = np.zeros((w.shape[0], 3, 3))
     skew[:, 0, 1], skew[:, 0, 2], skew[:, 1, 2] = -w[:, 2], w[:, 1], -w[:, 0]
     skew -= np.swapaxes(skew, 1, 2)
-    return np.eye(3) + a[:, None, None] * skew + b[:, None, None] * (skew @ skew)
+    rotations: np.ndarray = np.eye(3) + a[:, None, None] * skew + b[:, None, None] * (skew @ skew)
+    return rotations

@@ -142,7 +142,8 @@ class Homography(TwoViewModel):
 
         def matrices_of(p: np.ndarray) -> np.ndarray:
             normalised = (hn + p @ basis).reshape(-1, 3, 3)
-            return sims.T2_inv @ normalised @ sims.T1
+            pixels: np.ndarray = sims.T2_inv @ normalised @ sims.T1
+            return pixels
 
         return np.zeros(8), matrices_of
 
@@ -156,4 +157,5 @@ def _smallest_triangle(points: np.ndarray) -> np.ndarray:
     corners = points[:, _TRIPLES]  # (K, 4, 3, 2)
     d1 = corners[:, :, 1] - corners[:, :, 0]
     d2 = corners[:, :, 2] - corners[:, :, 0]
-    return 0.5 * np.abs(d1[..., 0] * d2[..., 1] - d1[..., 1] * d2[..., 0]).min(axis=1)
+    area: np.ndarray = 0.5 * np.abs(d1[..., 0] * d2[..., 1] - d1[..., 1] * d2[..., 0]).min(axis=1)
+    return area

@@ -13,6 +13,7 @@ from pearl_ros.core.models._twoview import FAR
 from pearl_ros.core.models.fundamental import Fundamental, _rotations
 from pearl_ros.core.neighbourhood import nearest_neighbours
 from pearl_ros.core.scale import local_scale
+
 from twoview_oracles import assert_batch_equals_singles, normalised_pairs, similarity
 
 

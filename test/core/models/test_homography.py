@@ -10,6 +10,7 @@ from pearl_ros.core.errors import InputError
 from pearl_ros.core.models import get_model
 from pearl_ros.core.models._twoview import FAR
 from pearl_ros.core.models.homography import Homography
+
 from twoview_oracles import assert_batch_equals_singles, normalised_pairs, similarity
 
 
