@@ -1,4 +1,5 @@
-"""The layers hold: core, online, bag I/O, datasets and make_bag import without rclpy."""
+"""The layers hold: core, online, bag I/O, the pipeline, datasets and the bag tools import without
+rclpy."""
 
 from __future__ import annotations
 
@@ -18,7 +19,10 @@ MODULES = (
     'pearl_ros.datasets.synthetic',
     'pearl_ros.cli.make_bag',
     'pearl_ros.cli.segment_bag',
-    'pearl_ros.frontend',
+    'pearl_ros.pipeline',
+    'pearl_ros.pipeline.settings',
+    'pearl_ros.pipeline.messages',
+    'pearl_ros.pipeline.replay',
     'pearl_ros.cli.replay',
     'pearl_ros.cli.bench',
     'pearl_ros.cli.bench_stream',

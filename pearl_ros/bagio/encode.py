@@ -153,7 +153,7 @@ def motion_labels(
     points['u'] = uv[:, 0]
     points['v'] = uv[:, 1]
     points['label'] = labels
-    offsets = LABEL_DTYPE.fields or {}  # name -> (dtype, offset)
+    offsets: dict[str, Any] = dict(LABEL_DTYPE.fields or {})  # name -> (dtype, offset)
     fields = [
         types.PointField(name=name, offset=int(offsets[name][1]), datatype=datatype, count=1)
         for name, _, datatype in LABEL_FIELDS

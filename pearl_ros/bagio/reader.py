@@ -7,9 +7,10 @@ Two ways in:
 
 - :func:`read_feature_frames`, :func:`read_ground_truth`, :func:`read_ground_truth_frames`:
   strict, a malformed message raises :class:`~pearl_ros.core.errors.BagError`;
-- :func:`open_feature_stream`: what a replay needs, every message in recording order with its
-  decoded frame *or* the one-line reason it cannot be read, so that one bad message is counted
-  and skipped instead of ending the run; other topics come along as ROS 2 CDR bytes.
+- :func:`open_feature_stream`: what a replay needs, every message in recording order,
+  deserialised *or* with the one-line reason it cannot be, so that one bad message is counted
+  and skipped instead of ending the run (decoding it is the pipeline's job,
+  :mod:`pearl_ros.pipeline.messages`); other topics come along as ROS 2 CDR bytes.
 """
 
 from __future__ import annotations
@@ -109,17 +110,14 @@ class FeatureMessage:
         ``'sensor_msgs/msg/PointCloud'`` or ``'sensor_msgs/msg/PointCloud2'``.
     msg : object or None
         The deserialised message (a rosbags dataclass); None if it could not be deserialised.
-    frame : FeatureFrame or None
-        Its features; None when the message is malformed.
     error : str or None
-        One-line reason why ``frame`` is None.
+        One-line reason why ``msg`` is None.
     """
 
     index: int
     log_time_ns: int
     msgtype: str
     msg: Any
-    frame: FeatureFrame | None
     error: str | None = None
 
 
@@ -165,13 +163,11 @@ class FeatureStream:
         The bag is a ROS 1 bag.
     """
 
-    def __init__(self, reader: AnyReader, path: Path, topic: str, layout: str, camera_id: int,
+    def __init__(self, reader: AnyReader, path: Path, topic: str,
                  copy_topics: tuple[str, ...]) -> None:
         self._reader = reader
         self.path = path
         self.topic = topic
-        self._layout = layout
-        self._camera_id = camera_id
         self._connections = _connections(reader, path, topic, FEATURE_TYPES)
         self.msgtypes = tuple(sorted({c.msgtype for c in self._connections}))
         self.count = sum(int(c.msgcount) for c in self._connections)
@@ -204,12 +200,8 @@ class FeatureStream:
             msg = self._reader.deserialize(raw, msgtype)
         except _ROSBAGS_ERRORS as err:
             reason = f'cannot deserialise {msgtype}: {_one_line(err)}'
-            return FeatureMessage(index, log_time, msgtype, None, None, reason)
-        try:
-            frame = decode_feature_message(msg, msgtype, self._layout, self._camera_id)
-        except InputError as err:
-            return FeatureMessage(index, log_time, msgtype, msg, None, _one_line(err))
-        return FeatureMessage(index, log_time, msgtype, msg, frame)
+            return FeatureMessage(index, log_time, msgtype, None, reason)
+        return FeatureMessage(index, log_time, msgtype, msg)
 
     def _copy(self, connection: Any, log_time: int, raw: Any) -> CopiedMessage:
         topic, msgtype = connection.topic, connection.msgtype
@@ -229,8 +221,6 @@ class FeatureStream:
 def open_feature_stream(
     path: str | Path,
     topic: str = '/feature_tracker/feature',
-    layout: str = 'auto',
-    camera_id: int = 0,
     copy_topics: tuple[str, ...] = (),
 ) -> Iterator[FeatureStream]:
     """Open a bag for a replay: its feature topic, plus other topics to pass through.
@@ -241,8 +231,6 @@ def open_feature_stream(
         ROS 2 bag folder, ``.mcap`` / ``.db3`` file, or ROS 1 ``.bag`` file.
     topic : str
         The feature topic (PointCloud or PointCloud2, detected per connection).
-    layout, camera_id
-        As :func:`read_feature_frames`.
     copy_topics : tuple of str
         Topics to yield as :class:`CopiedMessage`; those the bag lacks are ignored
         (:attr:`FeatureStream.copied` lists the ones found).
@@ -251,32 +239,38 @@ def open_feature_stream(
     ------
     BagError
         Missing or corrupt bag, unknown feature topic, wrong message type: on opening. Storage
-        damage met while iterating raises too; a malformed *message* does not, it comes out as a
-        :class:`FeatureMessage` with ``error`` set.
-    InputError
-        Bad ``layout`` or ``camera_id``.
+        damage met while iterating raises too; a message that cannot be deserialised does not,
+        it comes out as a :class:`FeatureMessage` with ``error`` set.
     """
-    layout = decode.check_layout(layout)
-    camera_id = decode.check_camera_id(camera_id)
     with _open(path) as reader:
-        yield FeatureStream(reader, Path(path), topic, layout, camera_id, tuple(copy_topics))
+        yield FeatureStream(reader, Path(path), topic, tuple(copy_topics))
 
 
-def decode_feature_message(
-    msg: Any, msgtype: str, layout: str = 'auto', camera_id: int = 0
-) -> FeatureFrame:
-    """The :class:`FeatureFrame` of one feature message, refusing what the node refuses.
+def read_features(msg: Any, msgtype: str | None = None, layout: str = 'auto',
+                  camera_id: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """Feature ids (N,) int64 and pixels (N, 2) float64 of one feature message.
 
-    Beyond :mod:`~pearl_ros.bagio.decode`'s checks, as ``pearl_node`` does: PointCloud ids above
-    ``2**24`` (float32 channels hold integers exactly only up to there, so two tracks may already
-    share one id), ids the ``motion_labels`` uint32 field cannot hold, and an empty cloud (nothing
-    to label).
+    Beyond :mod:`~pearl_ros.bagio.decode`'s checks: PointCloud ids above ``2**24`` (float32
+    channels hold integers exactly only up to there, so two tracks may already share one id) and
+    ids the ``motion_labels`` uint32 field cannot hold. An empty cloud gives N = 0.
+
+    Parameters
+    ----------
+    msg : sensor_msgs/msg/PointCloud or PointCloud2
+        An rclpy or rosbags message.
+    msgtype : str, optional
+        ``'sensor_msgs/msg/PointCloud'`` or ``'sensor_msgs/msg/PointCloud2'``; default: told by
+        the message's attributes (a PointCloud has ``channels``).
+    layout, camera_id
+        As :func:`~pearl_ros.bagio.decode.decode_pointcloud` (PointCloud only).
 
     Raises
     ------
     InputError
         With a one-line reason.
     """
+    if msgtype is None:
+        msgtype = POINTCLOUD if hasattr(msg, 'channels') else POINTCLOUD2
     if msgtype == POINTCLOUD2:
         ids, uv = decode.decode_pointcloud2(msg)
     elif msgtype == POINTCLOUD:
@@ -285,6 +279,22 @@ def decode_feature_message(
     else:
         raise InputError(f'{msgtype} is not a feature message type {FEATURE_TYPES}')
     encode.check_label_ids(ids)
+    return ids, uv
+
+
+def decode_feature_message(
+    msg: Any, msgtype: str, layout: str = 'auto', camera_id: int = 0
+) -> FeatureFrame:
+    """The :class:`FeatureFrame` of one feature message, refusing what the node refuses.
+
+    :func:`read_features`, and an empty cloud (nothing to label) is refused too.
+
+    Raises
+    ------
+    InputError
+        With a one-line reason.
+    """
+    ids, uv = read_features(msg, msgtype, layout, camera_id)
     if ids.size == 0:
         raise InputError('empty cloud: no features')
     return FeatureFrame(decode.stamp_ns(msg.header), ids, uv)

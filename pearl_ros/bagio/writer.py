@@ -137,9 +137,8 @@ def write_feature_bag(
     try:
         # Written under the final name so the storage file inside is <name>.mcap / <name>.db3.
         staged = staging / path.name
-        _write(
-            staged, frames, truth, topic, truth_topic, msg_format, storage, normalized, frame_id
-        )
+        _write(staged, frames, truth, topic, truth_topic, msg_format, storage, normalized,
+               frame_id)
         if path.exists() or path.is_symlink():
             raise BagError(f'{path} appeared while writing; not overwriting it')
         try:

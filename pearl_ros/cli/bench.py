@@ -270,21 +270,35 @@ def format_table(summary: dict[str, Any], title: str | None = None) -> str:
 
 
 def parse_overrides(items: Sequence[str]) -> dict[str, Any]:
-    """``NAME=VALUE`` strings to PearlConfig field values, parsed to each field's type.
+    """``NAME=VALUE`` strings to PearlConfig values (the batch fit's), typed.
 
     Raises
     ------
     InputError
-        On a malformed item, an unknown field name or a value of the wrong type.
+        On a malformed item, an unknown name (with the closest known one), a name of the
+        streaming or node parameters, or a value of the wrong type.
     """
-    from pearl_ros.online.config import parse_assignments
+    from pearl_ros.pipeline import settings
 
-    values = parse_assignments(items)
-    unknown = [name for name in values if name not in PearlConfig.field_names()]
-    if unknown:
-        known = ', '.join(PearlConfig.field_names())
-        raise InputError(f'unknown parameter {unknown[0]!r} (known: {known})')
-    return values
+    return settings.parse_assignments(items, refused=_not_batch())
+
+
+def _not_batch() -> tuple[str, ...]:
+    """Parameters the batch fit has no use for: the streaming layer's and the node's."""
+    from pearl_ros.core.config import parameter_specs
+    from pearl_ros.online.config import OnlineConfig
+    from pearl_ros.pipeline.settings import NODE_NAMES
+
+    return tuple(item.name for item in parameter_specs(OnlineConfig)) + NODE_NAMES
+
+
+def _online_configs(items: Sequence[str]) -> tuple[dict[str, Any], Any, Any]:
+    """``--set`` values of the streaming commands and their (PearlConfig, OnlineConfig)."""
+    from pearl_ros.pipeline import settings
+
+    overrides = settings.parse_assignments(items, refused=settings.NODE_NAMES)
+    built = settings.build(overrides, refused=settings.NODE_NAMES)
+    return overrides, built.config, built.online
 
 
 @dataclass(frozen=True)
@@ -466,12 +480,10 @@ def _build_parser() -> argparse.ArgumentParser:
 def _stream(args: argparse.Namespace) -> int:
     from pearl_ros.cli.bench_stream import StreamTask, format_stream, stream_one
     from pearl_ros.datasets.hopkins import sequence_names
-    from pearl_ros.online.config import build_configs, parse_assignments
 
     if args.jobs < 1:
         raise InputError(f'--jobs must be >= 1, got {args.jobs}')
-    overrides = parse_assignments(args.set)
-    config, online = build_configs(overrides)
+    overrides, config, online = _online_configs(args.set)
     root = Path(args.path)
     names = list(dict.fromkeys(args.only)) if args.only else sequence_names(root)
     if not names:
@@ -497,9 +509,8 @@ def _stream(args: argparse.Namespace) -> int:
 
 def _latency(args: argparse.Namespace) -> int:
     from pearl_ros.cli.bench_stream import format_latency, latency_one
-    from pearl_ros.online.config import build_configs, parse_assignments
 
-    config, online = build_configs(parse_assignments(args.set))
+    _, config, online = _online_configs(args.set)
     if min(args.scene_seeds) < 0:
         raise InputError(f'--scene-seeds must be >= 0, got {min(args.scene_seeds)}')
     rows = []
@@ -535,9 +546,13 @@ def _hopkins155(args: argparse.Namespace) -> int:
 
     if args.jobs < 1:
         raise InputError(f'--jobs must be >= 1, got {args.jobs}')
+    from pearl_ros.online.config import OnlineConfig
+    from pearl_ros.pipeline import settings
+
     overrides = parse_overrides(args.set)
     model = 'affine' if args.frames == 'all' else 'fundamental'
-    config = dataclasses.replace(PearlConfig(model=model), **overrides)
+    base = settings.Settings((PearlConfig(model=model), OnlineConfig()))
+    config = settings.build(overrides, base, refused=_not_batch()).config
 
     root = Path(args.path)
     everything = sequence_names(root, include_dancing=True)

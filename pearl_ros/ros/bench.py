@@ -33,9 +33,10 @@ from sensor_msgs.msg import ChannelFloat32, PointCloud, PointCloud2
 from std_msgs.msg import Header
 
 from pearl_ros.bagio import decode, encode
+from pearl_ros.core.errors import InputError
 from pearl_ros.core.metrics import misclassification
 from pearl_ros.datasets.synthetic import synthetic_stream
-from pearl_ros.online.config import parse_assignments
+from pearl_ros.pipeline import settings
 from pearl_ros.ros.node import PearlNode
 from pearl_ros.ros.play import spin_until
 
@@ -91,10 +92,15 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument('--frames', type=int, default=300, help='frames to publish')
     parser.add_argument('--seed', type=int, default=0, help='seed of the synthetic stream')
     parser.add_argument('--set', action='append', default=[], metavar='NAME=VALUE',
-                        help='segmenter parameter (PearlConfig / OnlineConfig), repeatable')
+                        help='a parameter of pearl_node, repeatable')
     args = parser.parse_args(argv)
     os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
-    overrides = parse_assignments(args.set)
+    try:
+        overrides = settings.parse_assignments(args.set)
+        settings.build(overrides)  # checked before ROS starts
+    except InputError as err:
+        print(f'error: {err}', file=sys.stderr)
+        return 1
 
     stream = list(synthetic_stream(num_features=args.features, frames=args.frames,
                                    seed=args.seed))
@@ -117,6 +123,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         source.timer.reset()
         spin_until(executor, lambda: len(source.latency) == len(messages),
                    len(messages) / args.rate + 30.0)
+    except KeyboardInterrupt:
+        print('error: interrupted', file=sys.stderr)
+        return 1
     finally:
         executor.remove_node(node)
         executor.remove_node(source)

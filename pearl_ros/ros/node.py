@@ -23,9 +23,13 @@ none: it is counted in the diagnostics and answered by a throttled warning.
 
 from __future__ import annotations
 
+import signal
 import sys
 import time
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
 from dataclasses import dataclass, field
+from types import FrameType
 from typing import Any
 
 import numpy as np
@@ -34,17 +38,20 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.event_handler import SubscriptionEventCallbacks
 from rclpy.exceptions import ParameterException
-from rclpy.executors import ExternalShutdownException
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
+from rclpy.signals import SignalHandlerOptions
+from rclpy.utilities import remove_ros_args
 from sensor_msgs.msg import PointCloud2
 from std_msgs.msg import Header
 from std_srvs.srv import Trigger
 
-from pearl_ros.bagio import decode, encode
 from pearl_ros.core.errors import InputError
-from pearl_ros.online.segmenter import OnlineSegmenter
+from pearl_ros.online.config import unknown_parameter
+from pearl_ros.pipeline import settings as pipeline_settings
+from pearl_ros.pipeline.messages import MessagePipeline, Skipped
 from pearl_ros.ros import convert, params
 
 WARN_PERIOD_S = 5.0  # at most one warning of each kind this often
@@ -91,25 +98,43 @@ class Stats:
 class PearlNode(Node):
     """The segmentation node (module docstring). Keyword arguments go to ``rclpy.node.Node``.
 
+    Parameters
+    ----------
+    node_name : str
+    params_files : sequence of str
+        The ``--params-file`` files of the process' ROS arguments (``main`` passes them): each
+        must have an entry for this node, or it would be ignored without a word. Files in
+        ``cli_args`` are checked too.
+
     Raises
     ------
-    InputError, rclpy.exceptions.ParameterException
-        A parameter override of the wrong type, out of range, or not among its choices.
+    InputError
+        A parameter override (``-p``, a parameter file, ``parameter_overrides``) of an unknown
+        name, of the wrong type, out of range or not among its choices; a parameter file
+        without an entry for this node.
     """
 
-    def __init__(self, node_name: str = 'pearl_node', **kwargs: Any) -> None:
+    def __init__(self, node_name: str = pipeline_settings.NODE_NAME, *,
+                 params_files: Sequence[str] = (), **kwargs: Any) -> None:
         super().__init__(node_name, **kwargs)
-        self._values = params.declare(self)
-        self._config, self._online, self._settings = params.build(self._values)
-        self._seg = OnlineSegmenter(self._config, self._online)
+        try:
+            files = [*params_files, *params.params_files(kwargs.get('cli_args') or ())]
+            params.check_params_files(files, self.get_fully_qualified_name())
+            # rclpy keeps the overrides it parsed (files, -p, parameter_overrides) here and
+            # offers no public accessor; declare() checks and applies them.
+            self._values = params.declare(self, self._parameter_overrides)
+            settings = pipeline_settings.build(self._values)
+        except BaseException:
+            self.destroy_node()
+            raise
+        self._pipeline = MessagePipeline(settings, convert.TYPES)
         self.stats = Stats()
         self._warned: dict[str, tuple[float, int]] = {}  # kind -> (last time, suppressed)
 
-        settings = self._settings
-        self._msg_class = convert.MSG_CLASSES[settings.msg_type]
+        node = settings.node
+        self._msg_class = convert.MSG_CLASSES[node.msg_type]
         self._sub = self.create_subscription(
-            self._msg_class, 'features', self._on_features,
-            input_qos(settings.qos, settings.qos_depth),
+            self._msg_class, 'features', self._on_features, input_qos(node.qos, node.qos_depth),
             event_callbacks=SubscriptionEventCallbacks(incompatible_qos=self._on_incompatible_qos),
         )
         output_qos = QoSProfile(depth=OUTPUT_DEPTH, reliability=ReliabilityPolicy.RELIABLE)
@@ -119,83 +144,79 @@ class PearlNode(Node):
         self._reset_srv = self.create_service(Trigger, '~/reset', self._on_reset)
         self.add_pre_set_parameters_callback(_ints_as_floats)
         self.add_on_set_parameters_callback(self._on_set_parameters)
-        self._timer = self.create_timer(settings.diagnostics_period, self._on_timer)
+        self._timer = self.create_timer(node.diagnostics_period, self._on_timer)
         self.get_logger().info(
-            f'segmenting {settings.msg_type} on {self._sub.topic_name} '
-            f'(layout {settings.layout}, qos {settings.qos} depth {settings.qos_depth})'
+            f'segmenting {node.msg_type} on {self._sub.topic_name} '
+            f'(layout {node.layout}, qos {node.qos} depth {node.qos_depth})'
         )
+
+    @property
+    def settings(self) -> pipeline_settings.Settings:
+        """The settings in force (they change with ``set_parameters``)."""
+        return self._pipeline.settings
 
     # ------------------------------------------------------------------------------ input
 
     def _on_features(self, msg: Any) -> None:
-        """Segment one message; publish its labels and static features.
+        """Segment one message (:meth:`MessagePipeline.process`); publish its two outputs.
 
-        Malformed (decode refuses it: channel lengths, missing channels or fields, NaN or inf
-        coordinates, duplicate or non-integer ids, PointCloud ids beyond 2**24): no output.
-        Skipped (readable but nothing to segment: an empty cloud, a stamp equal to the last):
-        no output. Capped (more than ``max_features``): a hashed subsample is segmented, the
-        rest labelled -1. A stamp earlier than the last empties the window first (one warning
-        per jump) and the message is segmented.
+        A message the pipeline skips gets no output: it is counted (malformed, or skipped when
+        it was read but had nothing to segment) and warned about, once per kind of problem per
+        :data:`WARN_PERIOD_S`. A capped message (more than ``max_features``) and a stamp going
+        back in time (the window is emptied first) are warned about too.
         """
         start = time.perf_counter()
-        stats, settings = self.stats, self._settings
+        stats, msg_type = self.stats, self.settings.node.msg_type
         stats.received += 1
         stats.period_received += 1
         try:
-            ids, uv = convert.read_features(msg, settings.msg_type, settings.layout,
-                                            settings.camera_id)
-        except InputError as err:
-            stats.malformed += 1
-            stats.period_problems += 1
-            self._warn('malformed', f'malformed {settings.msg_type} skipped: {err}')
-            return
-        if ids.size == 0:
-            stats.skipped += 1
-            stats.period_problems += 1
-            self._warn('empty', f'{settings.msg_type} with no features skipped')
-            return
-        keep = encode.subsample_mask(ids, settings.max_features)
-        if not keep.all():
-            stats.capped += 1
-            self._warn('capped', f'{ids.size} features > max_features {settings.max_features}: '
-                       'segmenting a hashed subsample, the rest labelled -1')
-        stamp = decode.stamp_ns(msg.header)
-        try:
-            result = self._seg.process(stamp, ids[keep], uv[keep])
-        except InputError as err:
-            stats.skipped += 1
-            stats.period_problems += 1
-            self._warn('rejected', f'{settings.msg_type} skipped: {err}')
-            return
-        if result.reset:
-            stats.resets += 1
-            self.get_logger().warning(
-                f'stamp {stamp} ns went back in time: window emptied (bag replayed in a loop?)'
-            )
-        try:
-            labels = np.full(ids.size, encode.UNLABELLED, dtype=np.int64)
-            labels[keep] = result.labels
-            background = settings.background_motion if settings.background_motion >= 0 else None
-            static = encode.static_mask(labels, background)
-            labels_msg = encode.motion_labels(msg.header, ids, uv, labels, convert.TYPES)
-            static_msg = encode.static_features(msg, static, convert.TYPES, settings.layout,
-                                                settings.camera_id)
+            out = self._pipeline.process(msg)
         except Exception as err:  # a bug must not take the node down with it
             stats.errors += 1
             self._warn('error', f'internal error, message dropped: {type(err).__name__}: {err}')
             return
-        self._labels_pub.publish(labels_msg)
-        self._static_pub.publish(static_msg)
+        if isinstance(out, Skipped):
+            stats.malformed += out.malformed
+            stats.skipped += not out.malformed
+            stats.period_problems += 1
+            self._warn(out.kind, f'{msg_type} message {out.line}')
+            return
+        if out.capped:
+            stats.capped += 1
+            self._warn('capped', f'{out.ids.size} features > max_features '
+                       f'{self.settings.node.max_features}: segmenting a hashed subsample, the '
+                       'rest labelled -1')
+        if out.result.reset:
+            stats.resets += 1
+            self.get_logger().warning(f'stamp {out.stamp_ns} ns went back in time: window '
+                                      'emptied (bag replayed in a loop?)')
+        with self._quiet_after_shutdown():
+            self._labels_pub.publish(out.labels_msg)
+            self._static_pub.publish(out.static_msg)
         stats.processed += 1
-        stats.motions = result.motions
-        stats.features = int(ids.size)
-        stats.segmented = int(keep.sum())
+        stats.motions = out.result.motions
+        stats.features = int(out.ids.size)
+        stats.segmented = int(out.segmented.sum())
         stats.period_latency_s.append(time.perf_counter() - start)
+
+    @contextmanager
+    def _quiet_after_shutdown(self) -> Iterator[None]:
+        """Let a callback end quietly when the context was shut down under it.
+
+        A signal handler or a launch system may shut the context down while a callback runs;
+        rclpy then refuses to publish (``RCLError: publisher's context is invalid``). Nobody is
+        left to receive the message: that is the end of the callback, not an error.
+        """
+        try:
+            yield
+        except Exception:
+            if self.context.ok():
+                raise
 
     def _on_incompatible_qos(self, info: Any) -> None:
         self.stats.incompatible_qos = int(info.total_count)
         self._warn('qos', f'{info.total_count} publisher(s) on {self._sub.topic_name} have a QoS '
-                   f'this {self._settings.qos} subscription cannot match '
+                   f'this {self.settings.node.qos} subscription cannot match '
                    f'({info.last_policy_kind.name}): nothing is received from them')
 
     # ------------------------------------------------------------------------- services
@@ -203,31 +224,44 @@ class PearlNode(Node):
     def _on_reset(self, request: Trigger.Request, response: Trigger.Response
                   ) -> Trigger.Response:
         del request
-        frames = self._seg.frames_in_window
-        self._seg.reset()
+        frames = self._pipeline.frames_in_window
+        self._pipeline.reset()
         self.stats.reset_requests += 1
         response.success = True
         response.message = f'window emptied ({frames} frames dropped)'
         self.get_logger().info(response.message)
         return response
 
+    def set_parameters_atomically(self, parameter_list: list[Parameter[Any]]
+                                  ) -> SetParametersResult:
+        """As rclpy's, but an undeclared name is refused naming it and the closest known one.
+
+        The parameter services (``ros2 param set``) come through here; rclpy's own answer names
+        no parameter.
+        """
+        unknown = [p.name for p in parameter_list if not self.has_parameter(p.name)]
+        if unknown:
+            reason = str(unknown_parameter(unknown[0], params.NAMES))
+            return SetParametersResult(successful=False, reason=reason)
+        return super().set_parameters_atomically(parameter_list)
+
     def _on_set_parameters(self, parameters: list[Parameter[Any]]) -> SetParametersResult:
-        """Validate a change through the configuration objects; apply it from the next frame."""
+        """Validate a change through the settings builder; apply it from the next frame."""
         values = {**self._values, **{p.name: p.value for p in parameters}}
         try:
-            config, online, settings = params.build(values)
+            settings = pipeline_settings.build(values)
         except InputError as err:
             return SetParametersResult(successful=False, reason=str(err))
-        self._seg.reconfigure(config, online)
-        self._values, self._config, self._online = values, config, online
-        self._settings = settings
+        self._pipeline.reconfigure(settings)
+        self._values = values
         return SetParametersResult(successful=True, reason='')
 
     # ---------------------------------------------------------------------- diagnostics
 
     def _on_timer(self) -> None:
-        self._check_publisher_types()
-        self._diagnostics_pub.publish(self.diagnostics())
+        with self._quiet_after_shutdown():
+            self._check_publisher_types()
+            self._diagnostics_pub.publish(self.diagnostics())
 
     def _check_publisher_types(self) -> None:
         """Warn about publishers of another type on ``features``.
@@ -236,14 +270,14 @@ class PearlNode(Node):
         type on the same name in one process, so the graph is the only place to see them.
         """
         topic = self._sub.topic_name
-        expected = convert.TYPE_NAMES[self._settings.msg_type]
+        expected = convert.TYPE_NAMES[self.settings.node.msg_type]
         wrong = [info for info in self.get_publishers_info_by_topic(topic)
                  if info.topic_type != expected]
         self.stats.mismatched_publishers = len(wrong)
         if wrong:
             kinds = ', '.join(sorted({info.topic_type for info in wrong}))
             self._warn('type', f'{len(wrong)} publisher(s) send {kinds} on {topic} but msg_type '
-                       f'is {self._settings.msg_type}: none of their messages arrive')
+                       f'is {self.settings.node.msg_type}: none of their messages arrive')
 
     def diagnostics(self) -> DiagnosticArray:
         """The status of the last period, and starts a new period."""
@@ -267,7 +301,7 @@ class PearlNode(Node):
             'motions': stats.motions,
             'features': stats.features,
             'features segmented': stats.segmented,
-            'frames in window': self._seg.frames_in_window,
+            'frames in window': self._pipeline.frames_in_window,
             'messages received': stats.received,
             'messages processed': stats.processed,
             'malformed messages': stats.malformed,
@@ -321,23 +355,114 @@ def _header(node: Node) -> Header:
     return Header(stamp=node.get_clock().now().to_msg())
 
 
+USAGE = """usage: pearl_node [-h] [--ros-args [-r features:=TOPIC] [--params-file FILE]
+                  [-p NAME:=VALUE] ...]
+
+Online motion segmentation of tracked features (PEaRL): labels each feature of each message on
+`features` with its motion, and passes the background motion's features on.
+
+topics (relative to the node's namespace; remap `features` to the tracker's topic):
+  features (in)          sensor_msgs/msg/PointCloud (VINS-Mono, VINS-Fusion) or PointCloud2
+                         (fields id and u, v or x, y), parameter msg_type
+  motion_labels (out)    sensor_msgs/msg/PointCloud2, fields id, u, v, label (-1 = outlier or
+                         undecided), one point per input feature in input order
+  static_features (out)  the input message with the background motion's features only
+  /diagnostics (out)     diagnostic_msgs/msg/DiagnosticArray every diagnostics_period s
+service:
+  ~/reset                std_srvs/srv/Trigger: empty the window
+
+parameters (NAME: default (range), description; set with -p NAME:=VALUE or a parameter file
+whose top key is pearl_node or /**; an unknown name is refused):
+{parameters}
+
+example:
+  pearl_node --ros-args -r features:=/feature_tracker/feature \\
+      --params-file config/pearl.yaml -p label_cost:=300.0
+"""
+
+
+class _StopRequest:
+    """SIGINT and SIGTERM ask the spin loop to stop between callbacks, never inside one.
+
+    rclpy's own handlers shut the context down at once, under a callback that may be
+    publishing; the loop in :func:`main` looks at :attr:`requested` between callbacks instead.
+    """
+
+    SIGNALS = (signal.SIGINT, signal.SIGTERM)
+
+    def __init__(self) -> None:
+        self.requested = False
+        self._previous = {sig: signal.signal(sig, self._on_signal) for sig in self.SIGNALS}
+
+    def _on_signal(self, signum: int, frame: FrameType | None) -> None:
+        del signum, frame
+        self.requested = True
+
+    def restore(self) -> None:
+        for sig, handler in self._previous.items():
+            signal.signal(sig, handler)
+
+
 def main(args: list[str] | None = None) -> int:
-    """``pearl_node`` console script: spin until Ctrl-C; exit 1 on a bad parameter."""
-    rclpy.init(args=args)
+    """``pearl_node`` console script: spin until SIGINT or SIGTERM, then exit 0.
+
+    ``args`` as ``sys.argv`` (the program first; default ``sys.argv``). Exit 1 with one
+    ``error:`` line for a bad parameter, parameter file or argument; ``-h`` / ``--help`` prints
+    the usage and exits 0 without starting ROS.
+    """
+    argv = list(sys.argv if args is None else args)
+    files = params.params_files(argv)
+    try:
+        for path in files:  # each readable and a ROS parameter file, before rcl parses it
+            pipeline_settings.load_file(path, None)
+        own = remove_ros_args(argv)[1:]
+    except (InputError, RuntimeError) as err:  # RuntimeError: rclpy's RCLInvalidROSArgsError
+        return _fail(err)
+    if own and own[0] in ('-h', '--help'):
+        print(USAGE.format(parameters=params.help_text()), end='')
+        return 0
+    if own:
+        return _fail(f'unrecognized arguments: {" ".join(own)} (ROS arguments go after '
+                     '--ros-args; see pearl_node --help)')
+    stop = _StopRequest()
+    try:
+        return _run(argv, files, stop)
+    finally:
+        stop.restore()
+
+
+def _run(argv: list[str], files: list[str], stop: _StopRequest) -> int:
+    try:
+        rclpy.init(args=argv, signal_handler_options=SignalHandlerOptions.NO)
+    except RuntimeError as err:  # rclpy's RCLError
+        return _fail(err)
     node = None
     try:
-        node = PearlNode()
-        rclpy.spin(node)
+        node = PearlNode(params_files=files)
+        executor = SingleThreadedExecutor()
+        executor.add_node(node)
+        while not stop.requested and rclpy.ok():
+            executor.spin_once(timeout_sec=0.1)
     except (InputError, ParameterException) as err:
-        print(f'error: {err}', file=sys.stderr)
-        return 1
-    except (KeyboardInterrupt, ExternalShutdownException):
+        return _fail(err)
+    except ExternalShutdownException:
         pass
+    except Exception:
+        if rclpy.ok():  # a bug
+            raise
+        # else: the context was shut down under a callback; what rclpy raised then is noise
     finally:
         if node is not None:
             node.destroy_node()
         rclpy.try_shutdown()
     return 0
+
+
+def _fail(err: BaseException | str) -> int:
+    """One ``error:`` line on stderr (rcl's messages lose their source locations); 1."""
+    text = ' '.join(str(err).split())
+    print(f'error: {text.split(", at /")[0]}', file=sys.stderr)
+    return 1
 
 
 if __name__ == '__main__':

@@ -1,30 +1,34 @@
-"""ROS parameters of ``pearl_node``: declared from the configuration objects, validated on set.
+"""ROS parameters of ``pearl_node``: declared from the configuration objects, checked at start-up.
 
 Three groups, all declared with a description and a range (``ParameterDescriptor``):
 
 - every field of :class:`~pearl_ros.core.config.PearlConfig` and
   :class:`~pearl_ros.online.config.OnlineConfig`, from
   :func:`~pearl_ros.core.config.parameter_specs` (the defaults are written once, there);
-- the node's own parameters, :data:`NODE_SPECS` (input type, layout, QoS, caps...), in the same
-  :class:`~pearl_ros.core.config.ParameterSpec` form. Those that shape a subscription are
-  read-only after start-up.
+- the node's own parameters, :class:`~pearl_ros.pipeline.settings.NodeConfig` (input type,
+  layout, QoS, caps...), in the same form. Those that shape a subscription are read-only after
+  start-up.
+
+Values are turned into settings by :func:`pearl_ros.pipeline.settings.build`, as
+``pearl_replay`` and ``pearl_bench`` turn theirs.
 """
 
 from __future__ import annotations
 
 import sys
 import textwrap
-from collections.abc import Iterable, Mapping
-from dataclasses import dataclass
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
 from rclpy.node import Node
+from rclpy.parameter import Parameter
 
 from pearl_ros.core.config import ParameterSpec, PearlConfig, check_value, parameter_specs
 from pearl_ros.core.errors import InputError
-from pearl_ros.frontend import NODE_SPECS
-from pearl_ros.online.config import OnlineConfig, build_configs
+from pearl_ros.online.config import OnlineConfig, unknown_parameter
+from pearl_ros.pipeline import settings as pipeline_settings
+from pearl_ros.pipeline.settings import NODE_SPECS
 
 _INT64 = 2**63 - 1
 
@@ -32,21 +36,10 @@ READ_ONLY = frozenset({'msg_type', 'qos', 'qos_depth', 'diagnostics_period'})
 CONFIG_SPECS: tuple[ParameterSpec, ...] = parameter_specs(PearlConfig) + parameter_specs(
     OnlineConfig)
 ALL_SPECS: tuple[ParameterSpec, ...] = CONFIG_SPECS + NODE_SPECS
-CONFIG_NAMES = frozenset(item.name for item in CONFIG_SPECS)
-
-
-@dataclass(frozen=True)
-class NodeSettings:
-    """The node's own parameter values (see :data:`NODE_SPECS` for meaning and units)."""
-
-    msg_type: str
-    layout: str
-    camera_id: int
-    qos: str
-    qos_depth: int
-    max_features: int
-    background_motion: int
-    diagnostics_period: float
+NAMES: tuple[str, ...] = tuple(item.name for item in ALL_SPECS)
+# ROS arguments that take a value (rcl's --ros-args syntax), to find --params-file among them.
+_VALUED = frozenset({'-p', '--param', '-r', '--remap', '-e', '--enclave', '--log-level',
+                     '--log-config-file', '--log-file-name', '--params-file'})
 
 
 def descriptor(item: ParameterSpec) -> ParameterDescriptor:
@@ -67,53 +60,90 @@ def descriptor(item: ParameterSpec) -> ParameterDescriptor:
     return desc
 
 
-def declare(node: Node) -> dict[str, Any]:
+def declare(node: Node, overrides: Mapping[str, Parameter[Any]]) -> dict[str, Any]:
     """Declare every parameter on ``node``; returns name -> value (overrides applied).
+
+    Parameters
+    ----------
+    node : Node
+    overrides : mapping of str -> Parameter
+        What rclpy gathered for the node from ``--params-file`` files, ``-p`` and the
+        constructor's ``parameter_overrides``.
 
     Raises
     ------
-    rclpy.exceptions.ParameterException
-        An override of the wrong type or outside its range (rclpy checks the descriptor).
+    InputError
+        An override of an unknown name (with the closest known one), of the wrong type (an
+        integer for a float parameter is that float, as at runtime), out of range or not among
+        the choices.
     """
+    unknown = [name for name in overrides
+               if name not in NAMES and not pipeline_settings.is_ros_parameter(name)]
+    if unknown:
+        raise unknown_parameter(unknown[0], NAMES)
     values = {}
     for item in ALL_SPECS:
-        values[item.name] = node.declare_parameter(item.name, item.default,
-                                                   descriptor(item)).value
+        value = overrides[item.name].value if item.name in overrides else item.default
+        if item.type is float and type(value) is int:
+            value = float(value)
+        check_value(item, value)
+        # The override is applied here, checked: rclpy would refuse 300 for a float parameter.
+        values[item.name] = node.declare_parameter(item.name, value, descriptor(item),
+                                                   ignore_override=True).value
     return values
+
+
+def check_params_files(paths: Sequence[str], node: str) -> None:
+    """Raise InputError unless each ROS parameter file has an entry for ``node`` (its full
+    name), with known names only (``pearl_node`` would silently ignore the others)."""
+    for path in paths:
+        values = pipeline_settings.load_file(path, node)
+        unknown = [name for name in values if name not in NAMES]
+        if unknown:
+            raise InputError(f'parameter file {path}: {unknown_parameter(unknown[0], NAMES)}')
+
+
+def params_files(args: Sequence[str]) -> list[str]:
+    """The ``--params-file`` paths among command-line arguments, in ``--ros-args`` sections."""
+    out, ros, skip = [], False, False
+    for k, arg in enumerate(args):
+        if skip:
+            skip = False
+        elif arg == '--ros-args':
+            ros = True
+        elif arg == '--' and ros:
+            ros = False
+        elif ros and arg in _VALUED:
+            skip = True
+            if arg == '--params-file' and k + 1 < len(args):
+                out.append(args[k + 1])
+    return out
+
+
+def help_text() -> str:
+    """Every parameter with its default, range and description, for ``pearl_node --help``."""
+    lines = []
+    for item in ALL_SPECS:
+        notes = [note for note in (_allowed(item), 'read-only' * (item.name in READ_ONLY))
+                 if note]
+        lines.append(f'  {item.name}: {_yaml_value(item.default)}'
+                     + (f'  ({", ".join(notes)})' if notes else ''))
+        lines.extend(textwrap.wrap(item.doc, 95, initial_indent=' ' * 6,
+                                   subsequent_indent=' ' * 6))
+    return '\n'.join(lines)
+
+
+def _allowed(item: ParameterSpec) -> str:
+    if item.choices is not None:
+        return 'one of ' + ' | '.join(item.choices)
+    if item.low is not None or item.high is not None:
+        return f'{_number(item.low)} .. {_number(item.high)}'
+    return ''
 
 
 def defaults() -> dict[str, Any]:
     """Name -> default of every declared parameter (what ``config/pearl.yaml`` holds)."""
     return {item.name: item.default for item in ALL_SPECS}
-
-
-def build(values: Mapping[str, Any], base: tuple[PearlConfig, OnlineConfig] | None = None
-          ) -> tuple[PearlConfig, OnlineConfig, NodeSettings]:
-    """The configuration objects and node settings from parameter values.
-
-    Parameters
-    ----------
-    values : mapping
-        Name -> value; names of both groups, all node names present (config names may be a
-        subset: the others come from ``base``).
-    base : (PearlConfig, OnlineConfig), optional
-
-    Raises
-    ------
-    InputError
-        A value of the wrong type, out of range or not among the choices, naming it.
-    """
-    config, online = build_configs({k: v for k, v in values.items() if k in CONFIG_NAMES}, base)
-    node_values = {item.name: values[item.name] for item in NODE_SPECS}
-    check_node_values(node_values.items())
-    return config, online, NodeSettings(**node_values)
-
-
-def check_node_values(items: Iterable[tuple[str, Any]]) -> None:
-    """Raise InputError naming the first node parameter of the wrong type or out of range."""
-    specs = {item.name: item for item in NODE_SPECS}
-    for name, value in items:
-        check_value(specs[name], value)
 
 
 def defaults_yaml() -> str:
@@ -153,8 +183,6 @@ def _yaml_value(value: Any) -> str:
         mantissa, e, exponent = text.partition('e')
         return (mantissa if '.' in mantissa else mantissa + '.0') + (e + exponent if e else '')
     return str(value)
-
-
 
 
 def markdown_table() -> str:

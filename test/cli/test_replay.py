@@ -32,20 +32,19 @@ from pearl_ros.bagio.decode import (
     decode_pointcloud2,
     stamp_ns,
 )
-from pearl_ros.cli.replay import (
-    NODE_APPLIED,
-    NODE_IGNORED,
-    ReplaySettings,
-    load_params,
-    main,
-    replay,
-    replay_throughput,
-    settings_from,
-)
+from pearl_ros.cli.replay import main
 from pearl_ros.core.metrics import misclassification
-from pearl_ros.frontend import NODE_SPECS
 from pearl_ros.online.config import build_configs
 from pearl_ros.online.segmenter import OnlineSegmenter
+from pearl_ros.pipeline.replay import ReplaySettings, replay, replay_throughput
+from pearl_ros.pipeline.settings import (
+    NODE_NAMES,
+    NODE_SPECS,
+    PIPELINE_NAMES,
+    Settings,
+    from_sources,
+    load_file,
+)
 
 REPO = Path(__file__).resolve().parents[2]
 BAGS = REPO / 'bags'
@@ -175,7 +174,7 @@ def test_final_frame_accuracy_against_ground_truth(name: str, replayed: dict) ->
     truth = {stamp_ns(msg.header): decode_labels(msg) for _, msg in messages(BAGS / name, TRUTH)}
     truth_ids, truth_labels = truth[stamp_ns(last.header)]  # the truth of that very frame
     ids, labels = decode_labels(last)
-    by_id = dict(zip(truth_ids.tolist(), truth_labels.tolist()))
+    by_id = dict(zip(truth_ids.tolist(), truth_labels.tolist(), strict=True))
     expected = np.array([by_id[i] for i in ids.tolist()])
     assert misclassification(labels, expected) <= ACCURACY_BOUNDS[name]
 
@@ -273,21 +272,28 @@ def test_sqlite3_output_and_other_topic_names(tmp_path: Path) -> None:
 def test_the_nodes_parameter_file_is_accepted() -> None:
     # config/pearl.yaml is the node's ROS parameter file (`/**: ros__parameters:`) and holds
     # the defaults: read by the replay it gives the default settings.
-    assert settings_from(load_params(REPO / 'config' / 'pearl.yaml'), []) == ReplaySettings()
+    assert from_sources([REPO / 'config' / 'pearl.yaml']) == Settings()
+    assert load_file(REPO / 'config' / 'pearl.yaml') == Settings().values()
 
 
-def test_node_parameters_known_to_replay_are_the_nodes_with_its_defaults() -> None:
-    assert sorted(NODE_APPLIED + NODE_IGNORED) == sorted(item.name for item in NODE_SPECS)
+def test_the_replay_applies_the_pipelines_node_parameters_with_the_nodes_defaults() -> None:
     defaults = {item.name: item.default for item in NODE_SPECS}
-    settings = ReplaySettings()
-    for name in NODE_APPLIED:
-        assert getattr(settings, name) == defaults[name]
-        assert getattr(settings_from({}, []), name) == defaults[name]
+    assert set(PIPELINE_NAMES) < set(NODE_NAMES)
+    settings = ReplaySettings().settings
+    for name in NODE_NAMES:
+        assert getattr(settings.node, name) == defaults[name]
+    # The transport parameters are taken (the node's own file holds them) but not reported.
+    values = from_sources([], ['qos=reliable', 'max_features=7']).values()
+    assert (values['qos'], values['max_features']) == ('reliable', 7)
 
 
 @pytest.mark.parametrize('text', [
     'pearl_node:\n  ros__parameters:\n    label_cost: 500\n    window: 4\n',
     '/**:\n  ros__parameters:\n    label_cost: 500.0\n    window: 4\n    qos: reliable\n',
+    '/pearl_node:\n  ros__parameters:\n    label_cost: 500\n    window: 4\n',
+    '/**/pearl_node:\n  ros__parameters:\n    label_cost: 500\n    window: 4\n',
+    'other_node:\n  ros__parameters:\n    window: 9\n'
+    '/**:\n  ros__parameters:\n    label_cost: 500\n    window: 4\n    use_sim_time: true\n',
     'label_cost: 500\nwindow: 4\n',
 ])
 def test_ros_style_and_flat_parameter_files_set_the_same_values(
@@ -295,9 +301,11 @@ def test_ros_style_and_flat_parameter_files_set_the_same_values(
 ) -> None:
     path = tmp_path / 'p.yaml'
     path.write_text(text)
-    settings = settings_from(load_params(path), ['window=5'])
+    settings = from_sources([path], ['window=5'])
     assert settings.config.label_cost == 500.0
+    assert type(settings.config.label_cost) is float  # an integer is taken as the float
     assert settings.online.window == 5  # --set wins over the file
+    assert from_sources([path]).online.window == 4
 
 
 def test_parameters_and_options_reach_the_replay(tmp_path: Path) -> None:
@@ -400,17 +408,23 @@ def test_wrong_message_type(tmp_path: Path, capsys: pytest.CaptureFixture[str]) 
 def test_a_topic_of_the_right_type_but_no_readable_message(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    # The ground truth is PointCloud2, but it has no u, v: every message is skipped.
-    assert main([str(BAGS / '1R2RCR_g12_pair'), '-o', str(tmp_path / 'out'),
+    # The ground truth is PointCloud2, but it has no u, v: every message is skipped, and said
+    # so once (the first of its kind), then the error.
+    assert main([str(BAGS / '1R2RCR_g12'), '-o', str(tmp_path / 'out'),
                  '--input-topic', TRUTH, '--truth-topic', '']) == 1
     err = capsys.readouterr().err.splitlines()
-    assert err[-1].startswith('error: none of the 2 messages on /ground_truth/labels')
-    assert all(line.startswith('warning: message ') for line in err[:-1]) and len(err) == 3
+    reason = "PointCloud2 has no u, v (or x, y) fields; fields: ['id', 'label']"
+    assert err == [
+        f'warning: message 0 on /ground_truth/labels skipped (layout): {reason}',
+        f'error: none of the 24 messages on /ground_truth/labels could be read (first: {reason})',
+    ]
     assert_nothing_left(tmp_path)
 
 
 @pytest.mark.parametrize('args,expected', [
     (['--set', 'no_such_parameter=1'], "unknown parameter 'no_such_parameter'"),
+    (['--set', 'label_cots=1'], "unknown parameter 'label_cots' (did you mean 'label_cost'?)"),
+    (['--set', 'max_feature=1'], "unknown parameter 'max_feature' (did you mean 'max_features'?)"),
     (['--set', 'label_cost=cheap'], 'invalid value for label_cost'),
     (['--set', 'window=1'], 'window must be >= 2'),
     (['--set', 'model=quadric'], 'model must be one of'),
@@ -419,7 +433,7 @@ def test_a_topic_of_the_right_type_but_no_readable_message(
     (['--set', 'window'], 'expected NAME=VALUE'),
     (['--layout', 'vins_stereo'], 'invalid choice'),
     (['--storage', 'rosbag1'], 'invalid choice'),
-    (['--camera-id', '-1'], 'camera_id must be an integer >= 0'),
+    (['--camera-id', '-1'], 'camera_id must be >= 0, got -1'),
     (['--no-such-flag'], 'unrecognized arguments'),
 ])
 def test_bad_parameters_and_options(
@@ -434,8 +448,13 @@ def test_bad_parameters_and_options(
     ('label_cost: [1, 2\n', 'not valid YAML'),
     ('- label_cost\n- 3\n', 'must hold a mapping'),
     (('other_node:\n  ros__parameters:\n    window: 3\n'
-      'another:\n  ros__parameters:\n    window: 4\n'), 'none for pearl_node'),
-    ('pearl_node:\n  ros__parameters:\n    lable_cost: 3.0\n', "unknown parameter 'lable_cost'"),
+      'another:\n  ros__parameters:\n    window: 4\n'),
+     'has no parameters for /pearl_node: its entries are for /other_node, /another'),
+    ('other_node:\n  ros__parameters:\n    window: 3\n', 'has no parameters for /pearl_node'),
+    ('/robot/pearl_node:\n  ros__parameters:\n    window: 3\n',
+     'has no parameters for /pearl_node'),
+    ('pearl_node:\n  ros__parameters:\n    lable_cost: 3.0\n',
+     "unknown parameter 'lable_cost' (did you mean 'label_cost'?)"),
     ('label_cost: expensive\n', 'label_cost must be of type float'),
     ('warm_start: 3\n', 'warm_start must be of type bool'),
 ])
@@ -582,9 +601,11 @@ def test_malformed_messages_are_skipped_counted_and_the_rest_processed(
     assert main([str(bag), '-o', str(out), '--stats', str(stats_path), *DETERMINISTIC]) == 0
     captured = capsys.readouterr()
     warnings = captured.err.splitlines()
-    assert len(warnings) == len(expected)
+    assert len(set(expected.values())) == len(expected)  # one message of each kind
+    assert len(warnings) == len(expected)  # so one warning each, and no count
     for line, index in zip(warnings, sorted(expected), strict=True):
-        assert line.startswith(f'warning: message {index} on {FEATURES} skipped: ')
+        assert line.startswith(f'warning: message {index} on {FEATURES} skipped '
+                               f'({expected[index]}): ')
     assert f'12 messages on {FEATURES}, {len(expected)} skipped' in captured.out
 
     stats = json.loads(stats_path.read_text())
@@ -600,7 +621,7 @@ def test_malformed_messages_are_skipped_counted_and_the_rest_processed(
     assert [t for t, _ in outputs] == [T0 + k * 33_000_000 for k in processed]
 
 
-def test_more_skips_than_warnings_are_still_all_counted(
+def test_one_warning_per_kind_then_every_skip_is_counted(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     cloud = 'sensor_msgs/msg/PointCloud'
@@ -615,8 +636,10 @@ def test_more_skips_than_warnings_are_still_all_counted(
     assert main([str(tmp_path / 'mixed'), '-o', str(tmp_path / 'out'), '--stats',
                  str(stats_path)]) == 0
     err = capsys.readouterr().err.splitlines()
-    assert err[-1] == 'warning: 30 messages skipped in all'
-    assert len(err) < 30
+    assert len(err) == 2  # the first of the kind, then the count
+    assert err[0].startswith(f'warning: message 0 on {FEATURES} skipped (deserialise): '
+                             'cannot deserialise sensor_msgs/msg/PointCloud')
+    assert err[1] == 'warning: 30 messages skipped in all (deserialise 30)'
     counts = json.loads(stats_path.read_text())['counts']
     assert counts['skipped'] == 30 and counts['frames'] == 2
     assert counts['skip_reasons'] == {'deserialise': 30}
@@ -636,7 +659,7 @@ def test_the_progress_bar_goes_to_stderr(
 
 def test_replay_throughput_gives_one_row_per_bag() -> None:
     bags = [BAGS / '1R2RCR_g12_pair', BAGS / '1R2RCR_g12_ros1.bag']
-    settings = settings_from({}, ['budget_ms=0'])
+    settings = ReplaySettings(settings=from_sources([], ['budget_ms=0']))
     rows = replay_throughput(bags, settings)
     assert [row['bag'] for row in rows] == ['1R2RCR_g12_pair', '1R2RCR_g12_ros1.bag']
     assert [row['frames'] for row in rows] == [2, 24]
@@ -671,13 +694,16 @@ def test_the_readme_examples_run(tmp_path: Path, monkeypatch: pytest.MonkeyPatch
     commands = [line for line in section.splitlines()
                 if line.startswith('.venv/bin/pearl_replay ')]
     assert len(commands) == 2
+    assert 'mkdir -p build\n' in section
     monkeypatch.chdir(tmp_path)  # outputs are relative paths; inputs are in the repository
+    (tmp_path / 'build').mkdir()
     for line in commands:
         args = shlex.split(line)[1:]
         args = [str(REPO / a) if a.startswith(('bags/', 'config/')) else a for a in args]
         assert main(args) == 0, capsys.readouterr().err
-    assert json.loads((tmp_path / 'labels_1R2RCR_g12.json').read_text())['counts']['frames'] == 24
-    assert len(messages(tmp_path / 'labels_ros1', LABELS)) == 24
+    stats = json.loads((tmp_path / 'build' / 'labels_1R2RCR_g12.json').read_text())
+    assert stats['counts']['frames'] == 24
+    assert len(messages(tmp_path / 'build' / 'labels_ros1', LABELS)) == 24
 
 
 def vins_fusion_bag(path: Path, frames: int = 3) -> list[tuple[int, np.ndarray, np.ndarray]]:

@@ -191,4 +191,4 @@ class Ros:
             self.executor.remove_node(node)
             node.destroy_node()
         self.executor.shutdown()
-        rclpy.shutdown(context=self.context)
+        rclpy.try_shutdown(context=self.context)  # a test may have shut it down already

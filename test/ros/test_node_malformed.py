@@ -3,20 +3,28 @@ the unreadable message, and the node goes on answering good messages."""
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 import rclpy
 from diagnostic_msgs.msg import DiagnosticStatus
 from rclpy.node import Node
-from ros_harness import BAG, RELIABLE, Probe, Ros, vins_cloud
+from rclpy.serialization import serialize_message
+from rosbags.rosbag2 import StoragePlugin, Writer
 from sensor_msgs.msg import PointCloud2
 
 from pearl_ros.bagio import decode, encode
+from pearl_ros.bagio.reader import TYPESTORE as TS
 from pearl_ros.bagio.reader import read_feature_frames
+from pearl_ros.pipeline.replay import replay
 from pearl_ros.ros import convert
+
+from ros_harness import BAG, RELIABLE, Probe, Ros, vins_cloud
 
 T0 = 1_700_000_000_000_000_000  # ns
 STEP = 33_333_333  # ns, 30 Hz
+FEATURES = '/feature_tracker/feature'
 IDS = np.arange(10, 22)
 UV = np.column_stack((np.linspace(10, 300, 12), np.linspace(40, 200, 12)))
 
@@ -60,13 +68,15 @@ def huge_float32_ids(k: int) -> object:
     return vins_cloud(T0 + k * STEP, ids, UV)
 
 
+# case -> (message maker, kind of skip, words of the reason)
 MALFORMED = {
-    'nan coordinates': (nan_cloud, 'non-finite'),
-    'inf coordinates': (inf_cloud, 'non-finite'),
-    'duplicate ids': (duplicate_ids, 'repeats feature id'),
-    'channel length differs from the point count': (short_channel, '11 values for 12 points'),
-    'missing channels': (missing_id_channel, 'cannot tell the PointCloud layout'),
-    'ids above 2**24 as float32': (huge_float32_ids, 'above 2**24'),
+    'nan coordinates': (nan_cloud, 'non_finite', 'non-finite'),
+    'inf coordinates': (inf_cloud, 'non_finite', 'non-finite'),
+    'duplicate ids': (duplicate_ids, 'duplicate_ids', 'repeats feature id'),
+    'channel length differs from the point count': (short_channel, 'layout',
+                                                    '11 values for 12 points'),
+    'missing channels': (missing_id_channel, 'layout', 'cannot tell the PointCloud layout'),
+    'ids above 2**24 as float32': (huge_float32_ids, 'ids', 'above 2**24'),
 }
 
 
@@ -82,7 +92,7 @@ def _start(ros: Ros, **overrides: object) -> tuple[Node, Probe]:
 def test_malformed_message_is_warned_once_counted_and_left_unanswered(
     ros: Ros, case: str
 ) -> None:
-    make, reason = MALFORMED[case]
+    make, kind, reason = MALFORMED[case]
     _, probe = _start(ros)
     probe.send(good(0))
     # Three bad messages in a row: three counts, one warning (throttled), no labels.
@@ -95,11 +105,39 @@ def test_malformed_message_is_warned_once_counted_and_left_unanswered(
     assert values['malformed messages'] == '3'
     assert values['messages received'] == '5'
     assert values['skipped messages'] == '0'
-    assert ros.spin_until(lambda: probe.warnings('malformed'))
+    assert ros.spin_until(lambda: probe.warnings(f'skipped ({kind})'))
     ros.spin_until(lambda: False, 0.2)  # let any further warning arrive
-    warnings = probe.warnings('malformed')
+    warnings = probe.warnings('skipped')
     assert len(warnings) == 1, warnings
+    assert warnings[0].startswith(f'PointCloud message skipped ({kind}): ')
     assert reason in warnings[0]
+
+
+def test_node_and_replay_answer_a_bad_message_with_the_same_line(
+    ros: Ros, tmp_path: Path
+) -> None:
+    # The same messages, live to the node and recorded in a bag for the replay engine.
+    makers = [make for make, _, _ in MALFORMED.values()]
+    sent = [good(0), *(make(k + 1) for k, make in enumerate(makers)), empty(len(makers) + 1)]
+    bag = tmp_path / 'bad'
+    cloud = 'sensor_msgs/msg/PointCloud'
+    with Writer(bag, version=9, storage_plugin=StoragePlugin.MCAP) as writer:
+        connection = writer.add_connection(FEATURES, cloud, typestore=TS)
+        for msg in sent:
+            writer.write(connection, decode.stamp_ns(msg.header), serialize_message(msg))
+    replayed: dict[str, str] = {}  # kind -> the first line, as pearl_replay prints it
+    replay(bag, tmp_path / 'out', warn=lambda index, skip: replayed.setdefault(skip.kind,
+                                                                               skip.line))
+    assert len(replayed) == 5
+
+    _, probe = _start(ros)
+    for msg in sent:
+        probe.send(msg, answered=msg is sent[0])
+    probe.send(good(len(sent)))
+    assert ros.spin_until(lambda: len(probe.warnings('skipped')) == len(replayed))
+    # One warning per kind in both front ends, the same words after their own context.
+    node_lines = [line.removeprefix('PointCloud message ') for line in probe.warnings('skipped')]
+    assert sorted(node_lines) == sorted(replayed.values())
 
 
 def test_a_period_with_malformed_messages_is_reported_as_a_warning(ros: Ros) -> None:
@@ -110,14 +148,18 @@ def test_a_period_with_malformed_messages_is_reported_as_a_warning(ros: Ros) -> 
     assert 'malformed or skipped' in values['_message']
 
 
+def empty(k: int) -> object:
+    return vins_cloud(T0 + k * STEP, [], np.empty((0, 2)))
+
+
 def test_empty_cloud_is_skipped_without_output(ros: Ros) -> None:
     _, probe = _start(ros)
-    probe.send(vins_cloud(T0, [], np.empty((0, 2))), answered=False)
+    probe.send(empty(0), answered=False)
     probe.send(good(1))
     assert [decode.stamp_ns(m.header) for m in probe.labels] == [T0 + STEP]
     values = probe.diagnostics_where(lambda v: v['messages processed'] == '1')
     assert (values['skipped messages'], values['malformed messages']) == ('1', '0')
-    assert ros.spin_until(lambda: probe.warnings('no features'))
+    assert ros.spin_until(lambda: probe.warnings('skipped (empty): empty cloud: no features'))
 
 
 def test_repeated_stamp_is_skipped_without_output(ros: Ros) -> None:
@@ -128,7 +170,8 @@ def test_repeated_stamp_is_skipped_without_output(ros: Ros) -> None:
     assert len(probe.labels) == 2
     values = probe.diagnostics_where(lambda v: v['messages processed'] == '2')
     assert values['skipped messages'] == '1'
-    assert ros.spin_until(lambda: probe.warnings('repeats the previous frame'))
+    assert ros.spin_until(lambda: probe.warnings('skipped (stamp): stamp'))
+    assert 'repeats the previous frame' in probe.warnings('skipped (stamp)')[0]
 
 
 def test_stamp_going_back_empties_the_window_and_is_logged_once(ros: Ros) -> None:

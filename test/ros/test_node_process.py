@@ -13,10 +13,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 from ament_index_python.packages import get_package_prefix
-from ros_harness import BAG, REPO, Ros, vins_cloud
 
 from pearl_ros.bagio import decode
 from pearl_ros.bagio.reader import read_feature_frames
+
+from ros_harness import BAG, REPO, Ros, vins_cloud
 
 BIN = Path(sys.executable).parent
 FRAMES = list(read_feature_frames(BAG))[:3]
@@ -79,6 +80,55 @@ def test_a_bad_parameter_stops_the_executable_with_a_one_line_error() -> None:
     assert lines[-1] == ("error: model must be one of ('affine', 'fundamental', "
                          "'homography'), got 'bogus'")
     assert 'Traceback' not in done.stderr
+
+
+def _first_error(command: list[str]) -> str:
+    done = subprocess.run(command, capture_output=True, text=True, timeout=60)
+    assert done.returncode == 1, done.stderr
+    assert 'Traceback' not in done.stderr
+    lines = done.stderr.strip().splitlines()
+    assert lines[-1].startswith('error: '), done.stderr
+    return lines[-1]
+
+
+@pytest.mark.parametrize(('text', 'expected'), [
+    ('other_node:\n  ros__parameters:\n    label_cost: 300.0\n',
+     "has no parameters for /pearl_node: its entries are for /other_node (name the node as "
+     "'pearl_node:' or '/**:')"),
+    ('/**:\n  ros__parameters:\n    label_cots: 300.0\n',
+     "unknown parameter 'label_cots' (did you mean 'label_cost'?)"),
+    ('/**:\n  ros__parameters:\n    window: 1\n', 'window must be >= 2, got 1'),
+])
+def test_node_and_replay_refuse_a_parameter_file_with_the_same_line(
+    tmp_path: Path, text: str, expected: str
+) -> None:
+    path = tmp_path / 'p.yaml'
+    path.write_text(text)
+    node = _first_error([str(BIN / 'pearl_node'), '--ros-args', '--params-file', str(path)])
+    replay = _first_error([str(BIN / 'pearl_replay'), str(REPO / 'bags' / '1R2RCR_g12_pair'),
+                           '-o', str(tmp_path / 'out'), '--params', str(path)])
+    assert node == replay
+    assert expected in node
+    assert not (tmp_path / 'out').exists()
+
+
+def test_node_and_replay_refuse_a_misspelt_name_with_the_same_line(tmp_path: Path) -> None:
+    node = _first_error([str(BIN / 'pearl_node'), '--ros-args', '-p', 'label_cots:=300'])
+    replay = _first_error([str(BIN / 'pearl_replay'), str(REPO / 'bags' / '1R2RCR_g12_pair'),
+                           '-o', str(tmp_path / 'out'), '--set', 'label_cots=300'])
+    assert node == replay == "error: unknown parameter 'label_cots' (did you mean 'label_cost'?)"
+
+
+@pytest.mark.parametrize(('args', 'expected'), [
+    (['--ros-args', '--params-file', 'no_such_file.yaml'],
+     'error: cannot read parameter file no_such_file.yaml: No such file or directory'),
+    (['--ros-args', '-r'], 'error: '),  # rcl refuses the arguments: one line still
+    (['--frobnicate'], 'error: unrecognized arguments: --frobnicate'),
+])
+def test_bad_arguments_stop_the_executable_with_a_one_line_error(
+    args: list[str], expected: str
+) -> None:
+    assert _first_error([str(BIN / 'pearl_node'), *args]).startswith(expected)
 
 
 def _copy_sources(target: Path) -> None:

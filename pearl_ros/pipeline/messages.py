@@ -1,0 +1,197 @@
+"""The per-message pipeline that ``pearl_node``, ``pearl_replay`` and ``pearl_play`` share.
+
+One feature message in, its two outputs (or the one-line reason there are none) out:
+
+1. decode the ``sensor_msgs/msg/PointCloud`` or ``PointCloud2`` (:mod:`pearl_ros.bagio.decode`,
+   with the checks :func:`pearl_ros.bagio.reader.read_features` adds);
+2. above ``max_features``, keep the subsample chosen by a hash of the ids
+   (:func:`pearl_ros.bagio.encode.subsample_mask`), the rest labelled -1;
+3. segment with :class:`~pearl_ros.online.segmenter.OnlineSegmenter`;
+4. pick the background motion (``background_motion``, or the largest) for ``static_features``;
+5. encode ``motion_labels`` and ``static_features`` with the message classes given.
+
+ROS-free: the message classes come in a :class:`~pearl_ros.bagio.encode.MessageTypes`, rclpy's
+for the node, a rosbags typestore's for the replay; decoding reads only what both share.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from pearl_ros.bagio import decode, encode
+from pearl_ros.bagio.reader import TYPESTORE, read_features
+from pearl_ros.core.errors import InputError
+from pearl_ros.online.segmenter import FrameResult, OnlineSegmenter
+from pearl_ros.pipeline.settings import Settings
+
+# Kinds of skipped message, each with words of the reasons that belong to it (first match).
+# A front end warns once per kind and counts the rest.
+_KINDS = (
+    ('deserialise', ('cannot deserialise',)),
+    ('empty', ('empty cloud',)),
+    ('stamp', ('stamp',)),
+    ('duplicate_ids', ('repeats feature id', 'duplicate ids')),
+    ('non_finite', ('non-finite',)),
+    ('ids', ('ids above', 'must be integers', 'must be numbers', 'feature ids must be in')),
+    ('layout', ('channel', 'field', 'layout', 'row_step', 'data has', 'datatype')),
+)
+
+
+def skip_kind(reason: str) -> str:
+    """The kind of a skip ``reason`` (``'layout'``, ``'non_finite'``...; ``'other'``)."""
+    lowered = reason.lower()
+    for kind, words in _KINDS:
+        if any(word in lowered for word in words):
+            return kind
+    return 'other'
+
+
+@dataclass(frozen=True)
+class Skipped:
+    """A message that got no output, and why.
+
+    Attributes
+    ----------
+    kind : str
+        :func:`skip_kind` of the reason.
+    reason : str
+        One line, the same in every front end.
+    malformed : bool
+        The message could not be read (else it was read but had nothing to segment: an empty
+        cloud, a repeated stamp).
+    """
+
+    kind: str
+    reason: str
+    malformed: bool
+
+    @classmethod
+    def because(cls, reason: str, malformed: bool = True) -> Skipped:
+        reason = ' '.join(str(reason).split())
+        return cls(skip_kind(reason), reason, malformed)
+
+    @property
+    def line(self) -> str:
+        """``'skipped (kind): reason'``: what every front end says, after its own context."""
+        return f'skipped ({self.kind}): {self.reason}'
+
+
+@dataclass(frozen=True)
+class Labelled:
+    """One message's labels and the two output messages.
+
+    Attributes
+    ----------
+    stamp_ns : int
+        Header stamp, int nanoseconds.
+    ids : (N,) int64
+    uv : (N, 2) float64, pixels
+    labels : (N,) int64
+        Motion number per input feature in input order, -1 = outlier or undecided.
+    segmented : (N,) bool
+        Fed to the segmenter (all of them unless more than ``max_features``).
+    static : (N,) bool
+        On ``static_features``: the background motion's features.
+    result : FrameResult
+        The segmenter's answer for the segmented features.
+    labels_msg, static_msg
+        ``motion_labels`` (PointCloud2) and ``static_features`` (the input's type).
+    """
+
+    stamp_ns: int
+    ids: np.ndarray
+    uv: np.ndarray
+    labels: np.ndarray
+    segmented: np.ndarray
+    static: np.ndarray
+    result: FrameResult
+    labels_msg: Any
+    static_msg: Any
+
+    @property
+    def capped(self) -> bool:
+        """More than ``max_features``: only a subsample was segmented."""
+        return not bool(self.segmented.all())
+
+
+class MessagePipeline:
+    """Feature messages in recording order -> :class:`Labelled` or :class:`Skipped`.
+
+    Parameters
+    ----------
+    settings : Settings, optional
+        Default: every parameter at its default.
+    types : MessageTypes, optional
+        Classes of the output messages; default: those of rosbags'
+        :data:`~pearl_ros.bagio.reader.TYPESTORE`. The node passes rclpy's
+        (``pearl_ros.ros.convert.TYPES``).
+    """
+
+    def __init__(self, settings: Settings | None = None,
+                 types: encode.MessageTypes | None = None) -> None:
+        self._settings = settings or Settings()
+        self._types = types or encode.MessageTypes.from_typestore(TYPESTORE)
+        self._segmenter = OnlineSegmenter(*self._settings.configs)
+
+    @property
+    def settings(self) -> Settings:
+        return self._settings
+
+    @property
+    def frames_in_window(self) -> int:
+        return self._segmenter.frames_in_window
+
+    def reconfigure(self, settings: Settings) -> None:
+        """New settings from the next message on; the window is kept."""
+        self._segmenter.reconfigure(*settings.configs)
+        self._settings = settings
+
+    def reset(self) -> None:
+        """Empty the window: the next message starts afresh."""
+        self._segmenter.reset()
+
+    def process(self, msg: Any, header: Any = None) -> Labelled | Skipped:
+        """Segment one feature message.
+
+        Parameters
+        ----------
+        msg : sensor_msgs/msg/PointCloud or PointCloud2
+            An rclpy or rosbags message.
+        header : std_msgs/msg/Header, optional
+            Header of both outputs; default ``msg.header``.
+
+        Returns
+        -------
+        Labelled, or Skipped when the message cannot be read (malformed: channel lengths,
+        missing channels or fields, NaN or inf coordinates, duplicate or non-integer ids,
+        PointCloud ids beyond 2**24) or has nothing to segment (an empty cloud, a stamp equal
+        to the last). A stamp earlier than the last empties the window first
+        (``result.reset``), and the message is segmented.
+        """
+        node = self._settings.node
+        try:
+            ids, uv = read_features(msg, None, node.layout, node.camera_id)
+        except InputError as err:
+            return Skipped.because(str(err))
+        if ids.size == 0:
+            return Skipped.because('empty cloud: no features', malformed=False)
+        segmented = encode.subsample_mask(ids, node.max_features)
+        stamp = decode.stamp_ns(msg.header)
+        try:
+            result = self._segmenter.process(stamp, ids[segmented], uv[segmented])
+        except InputError as err:  # a stamp equal to the last: the window is unchanged
+            return Skipped.because(str(err), malformed=False)
+        labels = np.full(ids.size, encode.UNLABELLED, dtype=np.int64)
+        labels[segmented] = result.labels
+        background = node.background_motion if node.background_motion >= 0 else None
+        static = encode.static_mask(labels, background)
+        header = msg.header if header is None else header
+        labels_msg = encode.motion_labels(header, ids, uv, labels, self._types)
+        static_msg = encode.static_features(msg, static, self._types, node.layout,
+                                            node.camera_id)
+        static_msg.header = header
+        return Labelled(stamp, ids, uv, labels, segmented, static, result, labels_msg,
+                        static_msg)
