@@ -144,14 +144,20 @@ def parse_value(name: str, text: str) -> Any:
         raise InputError(f'invalid value for {name}: {text!r} is not {kind}') from err
 
 
+def split_assignment(item: str) -> tuple[str, str]:
+    """``'NAME=VALUE'`` -> ``(NAME, VALUE)``, the name stripped; InputError if malformed."""
+    name, sep, text = item.partition('=')
+    name = name.strip()
+    if not sep or not name:
+        raise InputError(f'expected NAME=VALUE, got {item!r}')
+    return name, text
+
+
 def parse_assignments(items: Iterable[str]) -> dict[str, Any]:
     """``NAME=VALUE`` strings to a mapping of typed parameter values."""
     out: dict[str, Any] = {}
     for item in items:
-        name, sep, text = item.partition('=')
-        name = name.strip()
-        if not sep or not name:
-            raise InputError(f'expected NAME=VALUE, got {item!r}')
+        name, text = split_assignment(item)
         out[name] = parse_value(name, text)
     return out
 
@@ -186,6 +192,16 @@ def build_configs(values: Mapping[str, Any], base: tuple[PearlConfig, OnlineConf
         config = dataclasses.replace(config, solver=settings)
     return (dataclasses.replace(config, **_own(typed, PearlConfig)),
             dataclasses.replace(online, **_own(typed, OnlineConfig)))
+
+
+def setting_values(config: PearlConfig, online: OnlineConfig) -> dict[str, Any]:
+    """Every name of :func:`known_names` -> its value in ``config`` and ``online``: what
+    :func:`build_configs` takes to build them again (a record of the settings a run used)."""
+    values = {item.name: getattr(obj, item.name) for obj in (config, online)
+              for item in parameter_specs(type(obj))}
+    values.update({SOLVER_PREFIX + item.name: getattr(config.solver, item.name)
+                   for item in solver_specs()})
+    return values
 
 
 def _own(values: Mapping[str, Any], cls: type) -> dict[str, Any]:

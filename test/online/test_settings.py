@@ -17,6 +17,7 @@ from pearl_ros.online.config import (
     build_configs,
     known_names,
     parse_assignments,
+    setting_values,
     solver_names,
     unknown_parameter,
     user_names,
@@ -72,6 +73,15 @@ def test_a_solver_setting_set_by_name_builds_the_settings_with_it_and_keeps_the_
     config, online = build_configs({'solver.split_tries': 0}, base)
     assert config.solver == SolverSettings(max_passes=2, split_tries=0)
     assert online.window == 5
+
+
+def test_the_values_of_a_pair_of_configs_build_the_same_pair_again():
+    pair = configs('solver.patch_size=10', 'solver.proposal_levels=1,3', 'label_cost=300',
+                   'window=6')
+    values = setting_values(*pair)
+    assert tuple(values) == known_names()
+    assert values['solver.patch_size'] == 10 and values['window'] == 6
+    assert build_configs(values) == pair
 
 
 def test_ints_and_lists_from_a_file_are_the_floats_and_tuples_of_the_settings():
