@@ -40,8 +40,9 @@ from pearl_ros.bagio.reader import (
 )
 from pearl_ros.bagio.writer import is_bag, open_output_bag
 from pearl_ros.core.errors import BagError, InputError
+from pearl_ros.online.config import setting_values
 from pearl_ros.pipeline.messages import Labelled, MessagePipeline, Skipped
-from pearl_ros.pipeline.settings import NODE_NAMES, PIPELINE_NAMES, Settings
+from pearl_ros.pipeline.settings import PIPELINE_NAMES, Settings
 
 INPUT_TOPIC = '/feature_tracker/feature'
 OUTPUT_TOPIC = '/motion_labels'
@@ -361,9 +362,11 @@ def _ros2_header(header: Any) -> Any:
 
 
 def _parameters(settings: Settings) -> dict[str, Any]:
-    """The parameters that shaped the replay: the configuration objects' and the pipeline's."""
-    return {k: v for k, v in settings.values().items()
-            if k not in NODE_NAMES or k in PIPELINE_NAMES}
+    """What shaped the replay: every setting of the segmenter (``solver.NAME`` included) and the
+    pipeline's node parameters."""
+    values = setting_values(*settings.configs)
+    values.update(settings.values(PIPELINE_NAMES))
+    return values
 
 
 def _quantiles(values: np.ndarray) -> dict[str, float | None]:

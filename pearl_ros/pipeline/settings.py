@@ -157,10 +157,7 @@ def parse_assignments(items: Iterable[str], refused: Collection[str] = ()) -> di
     specs = {item.name: item for item in NODE_SPECS}
     out: dict[str, Any] = {}
     for item in items:
-        name, sep, text = item.partition('=')
-        name = name.strip()
-        if not sep or not name:
-            raise InputError(f'expected NAME=VALUE, got {item!r}')
+        name, text = online_config.split_assignment(item)
         check_names([name], refused)
         if name not in specs:
             out.update(online_config.parse_assignments([f'{name}={text}']))

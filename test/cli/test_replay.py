@@ -313,9 +313,12 @@ def test_parameters_and_options_reach_the_replay(tmp_path: Path) -> None:
     params.write_text('pearl_node:\n  ros__parameters:\n    window: 3\n    seed: 7\n')
     stats = tmp_path / 's.json'
     assert main([str(BAGS / '1R2RCR_g12_pair'), '-o', str(tmp_path / 'out'), '--params',
-                 str(params), '--set', 'seed=9', 'budget_ms=0', '--stats', str(stats)]) == 0
+                 str(params), '--set', 'seed=9', 'budget_ms=0', 'solver.max_passes=4',
+                 '--stats', str(stats)]) == 0
     values = json.loads(stats.read_text())['parameters']
     assert (values['window'], values['seed'], values['budget_ms']) == (3, 9, 0.0)
+    assert values['solver.max_passes'] == 4  # the solver's settings are recorded too
+    assert 'qos' not in values  # transport parameters play no part in a replay
 
 
 def test_max_features_caps_what_is_segmented_as_the_node_does(tmp_path: Path) -> None:

@@ -16,6 +16,7 @@ from ament_index_python.packages import get_package_prefix
 
 from pearl_ros.bagio import decode
 from pearl_ros.bagio.reader import read_feature_frames
+from pearl_ros.ros import params
 
 from ros_harness import BAG, REPO, Ros, vins_cloud
 
@@ -24,8 +25,10 @@ FRAMES = list(read_feature_frames(BAG))[:3]
 
 
 def _start(command: list[str], ros: Ros, env: dict[str, str] | None = None) -> subprocess.Popen:
+    # label_cost:=600 is the default, given as an integer: taken for the float it means.
     return subprocess.Popen(
-        [*command, '--ros-args', '-r', f'__ns:={ros.ns}', '-p', 'diagnostics_period:=0.2'],
+        [*command, '--ros-args', '-r', f'__ns:={ros.ns}', '-p', 'diagnostics_period:=0.2',
+         '-p', 'label_cost:=600'],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
         env={**os.environ, **(env or {})},
     )
@@ -82,8 +85,23 @@ def test_a_bad_parameter_stops_the_executable_with_a_one_line_error() -> None:
     assert 'Traceback' not in done.stderr
 
 
-def _first_error(command: list[str]) -> str:
-    done = subprocess.run(command, capture_output=True, text=True, timeout=60)
+def test_help_lists_topics_and_every_parameter_without_starting_ros() -> None:
+    # With a domain id rcl refuses, starting ROS fails (one line, exit 1); the help does not.
+    env = {**os.environ, 'ROS_DOMAIN_ID': 'none'}
+    assert _first_error([str(BIN / 'pearl_node')], env) == (
+        'error: failed to initialize rcl: ROS_DOMAIN_ID is not an integral number')
+    done = subprocess.run([str(BIN / 'pearl_node'), '--help'], capture_output=True, text=True,
+                          timeout=60, env=env)
+    assert done.returncode == 0 and done.stderr == '', done.stderr
+    for topic in ('features (in)', 'motion_labels (out)', 'static_features (out)', '~/reset'):
+        assert topic in done.stdout
+    for item in params.ALL_SPECS:
+        assert f'\n  {item.name}: ' in done.stdout, item.name
+        assert item.doc.split()[0] in done.stdout
+
+
+def _first_error(command: list[str], env: dict[str, str] | None = None) -> str:
+    done = subprocess.run(command, capture_output=True, text=True, timeout=60, env=env)
     assert done.returncode == 1, done.stderr
     assert 'Traceback' not in done.stderr
     lines = done.stderr.strip().splitlines()
