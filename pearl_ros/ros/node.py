@@ -18,7 +18,10 @@ Service ``~/reset`` (``std_srvs/srv/Trigger``) empties the window.
 
 Every input message that can be read gets exactly one ``motion_labels`` and one
 ``static_features`` with its header. One that cannot (see :meth:`PearlNode._on_features`) gets
-none: it is counted in the diagnostics and answered by a throttled warning.
+none: it is counted in the diagnostics and answered by a throttled warning. The per-message work
+is :class:`~pearl_ros.pipeline.messages.MessagePipeline`, the code ``pearl_replay`` runs.
+
+SIGINT or SIGTERM stops the node between two callbacks, with exit status 0.
 """
 
 from __future__ import annotations
