@@ -185,7 +185,7 @@ class FeatureStream:
             try:
                 item = next(iterator, None)
             except _ROSBAGS_ERRORS as err:  # storage damage: the rest of the bag is unreadable
-                raise BagError(f'cannot read bag {self.path}: {_one_line(err)}') from err
+                raise BagError(f'cannot read bag {self.path}: {one_line(err)}') from err
             if item is None:
                 return
             connection, log_time, raw = item
@@ -199,7 +199,7 @@ class FeatureStream:
         try:
             msg = self._reader.deserialize(raw, msgtype)
         except _ROSBAGS_ERRORS as err:
-            reason = f'cannot deserialise {msgtype}: {_one_line(err)}'
+            reason = f'cannot deserialise {msgtype}: {one_line(err)}'
             return FeatureMessage(index, log_time, msgtype, None, reason)
         return FeatureMessage(index, log_time, msgtype, msg)
 
@@ -213,7 +213,7 @@ class FeatureStream:
             cdr = bytes(TYPESTORE.serialize_cdr(msg, msgtype))
         except _ROSBAGS_ERRORS as err:
             return CopiedMessage(topic, msgtype, log_time, None,
-                                 f'cannot convert {msgtype} to ROS 2: {_one_line(err)}')
+                                 f'cannot convert {msgtype} to ROS 2: {one_line(err)}')
         return CopiedMessage(topic, msgtype, log_time, cdr)
 
 
@@ -436,7 +436,7 @@ def _open(path: str | Path) -> Iterator[AnyReader]:
         reader = AnyReader([path], default_typestore=TYPESTORE)
         reader.open()
     except _ROSBAGS_ERRORS as err:
-        raise BagError(f'cannot open bag {path}: {_one_line(err)}') from err
+        raise BagError(f'cannot open bag {path}: {one_line(err)}') from err
     try:
         yield reader
     finally:
@@ -477,11 +477,11 @@ def _messages(reader: AnyReader, path: str | Path, connections: list[Any]) -> It
             connection, _, raw = item
             msg = reader.deserialize(raw, connection.msgtype)
         except _ROSBAGS_ERRORS as err:
-            raise BagError(f'cannot read bag {path}: {_one_line(err)}') from err
+            raise BagError(f'cannot read bag {path}: {one_line(err)}') from err
         yield connection.msgtype, msg
 
 
-def _one_line(err: BaseException, limit: int = 300) -> str:
+def one_line(err: BaseException, limit: int = 300) -> str:
     """``err`` as one line of at most ``limit`` characters (YAML errors span several)."""
     text = ' '.join(str(err).split()) or type(err).__name__
     return text if len(text) <= limit else text[: limit - 3] + '...'

@@ -37,7 +37,7 @@ from rosbags.serde import SerdeError
 from rosbags.typesys import Stores, get_typestore
 
 from pearl_ros.bagio import decode
-from pearl_ros.bagio.reader import POINTCLOUD, POINTCLOUD2, TYPESTORE, FeatureFrame
+from pearl_ros.bagio.reader import POINTCLOUD, POINTCLOUD2, TYPESTORE, FeatureFrame, one_line
 from pearl_ros.core.errors import BagError, InputError
 
 FORMATS = {'pointcloud': POINTCLOUD, 'pointcloud2': POINTCLOUD2}
@@ -213,7 +213,7 @@ class OutputBag:
                 topic, msgtype, typestore=TYPESTORE
             )
         except WriterError as err:
-            raise BagError(f'cannot add topic {topic}: {_one_line(err)}') from err
+            raise BagError(f'cannot add topic {topic}: {one_line(err)}') from err
         self.counts[topic] = 0
 
     def write(self, topic: str, log_time_ns: int, msg: Any) -> None:
@@ -222,7 +222,7 @@ class OutputBag:
         try:
             raw = bytes(TYPESTORE.serialize_cdr(msg, connection.msgtype))
         except (SerdeError, AttributeError, TypeError, ValueError, KeyError) as err:
-            raise BagError(f'cannot serialise {connection.msgtype}: {_one_line(err)}') from err
+            raise BagError(f'cannot serialise {connection.msgtype}: {one_line(err)}') from err
         self.write_cdr(topic, log_time_ns, raw)
 
     def write_cdr(self, topic: str, log_time_ns: int, cdr: bytes) -> None:
@@ -231,7 +231,7 @@ class OutputBag:
         try:
             self._writer.write(connection, int(log_time_ns), cdr)
         except (WriterError, OSError) as err:
-            raise BagError(f'cannot write bag {self.path}: {_one_line(err)}') from err
+            raise BagError(f'cannot write bag {self.path}: {one_line(err)}') from err
         self.counts[topic] += 1
 
     def _connection(self, topic: str) -> Any:
@@ -288,7 +288,7 @@ def open_output_bag(
         try:
             writer.open()
         except (WriterError, OSError) as err:
-            raise BagError(f'cannot write bag {path}: {_one_line(err)}') from err
+            raise BagError(f'cannot write bag {path}: {one_line(err)}') from err
         try:
             yield OutputBag(writer, path)
         except BaseException:
@@ -301,7 +301,7 @@ def open_output_bag(
         try:
             writer.close()
         except (WriterError, OSError) as err:
-            raise BagError(f'cannot finish bag {path}: {_one_line(err)}') from err
+            raise BagError(f'cannot finish bag {path}: {one_line(err)}') from err
         _move_into_place(staged, path, staging)
     finally:
         shutil.rmtree(staging, ignore_errors=True)
@@ -334,7 +334,7 @@ def write_ros1_bag(source: str | Path, path: str | Path) -> None:
                 TYPESTORE, get_typestore(Stores.ROS1_NOETIC), [], [], [], [],
             )
         except (ConverterError, OSError) as err:
-            raise BagError(f'cannot convert {source} to ROS 1: {_one_line(err)}') from err
+            raise BagError(f'cannot convert {source} to ROS 1: {one_line(err)}') from err
         _move_into_place(staged, path, staging)
     finally:
         shutil.rmtree(staging, ignore_errors=True)
@@ -371,10 +371,6 @@ def _move_into_place(staged: Path, path: Path, staging: Path) -> None:
         if moved and not path.exists():
             old.rename(path)  # put the old bag back
         raise BagError(f'cannot move the new bag to {path}: {err.strerror or err}') from err
-
-
-def _one_line(err: BaseException) -> str:
-    return ' '.join(str(err).split()) or type(err).__name__
 
 
 def _feature_messages(

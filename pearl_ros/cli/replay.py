@@ -21,6 +21,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from pearl_ros.bagio import decode
+from pearl_ros.bagio.reader import one_line
 from pearl_ros.bagio.writer import STORAGES
 from pearl_ros.core.errors import InputError, PearlError
 from pearl_ros.pipeline import settings as pipeline_settings
@@ -119,7 +120,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     except (PearlError, OSError) as err:
         if bar is not None:
             bar.close()
-        print(f'error: {_one_line(err)}', file=sys.stderr)
+        print(f'error: {one_line(err, 400)}', file=sys.stderr)
         return 1
     except KeyboardInterrupt:
         if bar is not None:
@@ -202,11 +203,6 @@ class _Warnings:
             kinds = ', '.join(f'{kind} {count}' for kind, count in sorted(self.kinds.items()))
             print(f'warning: {total} messages skipped in all ({kinds})',
                   file=self._stream)
-
-
-def _one_line(err: BaseException) -> str:
-    text = ' '.join(str(err).split()) or type(err).__name__
-    return text if len(text) <= 400 else text[:397] + '...'
 
 
 if __name__ == '__main__':

@@ -23,6 +23,7 @@ from pathlib import Path
 from typing import Any
 
 from pearl_ros.bagio import decode
+from pearl_ros.bagio.reader import one_line
 from pearl_ros.core.config import ParameterSpec, check_fields, parameter_specs, spec
 from pearl_ros.core.errors import InputError
 from pearl_ros.online import config as online_config
@@ -264,8 +265,7 @@ def _read_yaml(path: Path) -> Any:
     try:
         data = YAML(typ='safe', pure=True).load(text)
     except (YAMLError, ValueError) as err:
-        detail = ' '.join(str(err).split())
-        raise InputError(f'parameter file {path} is not valid YAML: {detail[:200]}') from err
+        raise InputError(f'parameter file {path} is not valid YAML: {one_line(err, 200)}') from err
     if data is None:
         return {}
     if not isinstance(data, Mapping):
