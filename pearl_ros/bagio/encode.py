@@ -146,8 +146,8 @@ def motion_labels(
         )
     ids = decode.integer_ids(ids, 'motion_labels ids')
     labels = decode.integer_ids(labels, 'motion_labels labels')
-    _check_range(ids, 0, 2**32, 'motion_labels ids (uint32)')
-    _check_range(labels, -(2**31), 2**31, 'motion_labels labels (int32)')
+    check_range(ids, 0, 2**32, 'motion_labels ids (uint32)')
+    check_range(labels, -(2**31), 2**31, 'motion_labels labels (int32)')
     points = np.empty(size, dtype=LABEL_DTYPE)
     points['id'] = ids
     points['u'] = uv[:, 0]
@@ -324,8 +324,8 @@ def _check_keep(keep: np.ndarray, expected: int) -> None:
         raise InputError(f'keep has {keep.size} flags for {expected} features in the message')
 
 
-def _check_range(values: np.ndarray, low: int, high: int, what: str) -> None:
-    """``low <= values < high``."""
+def check_range(values: np.ndarray, low: int, high: int, what: str) -> None:
+    """Raise InputError naming ``what`` unless ``low <= values < high``."""
     bad = (values < low) | (values >= high)
     if bad.any():
         raise InputError(f'{what} out of range: {values[bad][:3].tolist()}')

@@ -37,6 +37,7 @@ from rosbags.serde import SerdeError
 from rosbags.typesys import Stores, get_typestore
 
 from pearl_ros.bagio import decode
+from pearl_ros.bagio.encode import check_range
 from pearl_ros.bagio.reader import POINTCLOUD, POINTCLOUD2, TYPESTORE, FeatureFrame, one_line
 from pearl_ros.core.errors import BagError, InputError
 
@@ -411,8 +412,8 @@ def _truth_messages(
                 f'truth item {index}: ids and labels must both be (M,), got {ids.shape} and '
                 f'{labels.shape}'
             )
-        _check_range(ids, 0, _UINT32, f'truth item {index} ids (uint32)')
-        _check_range(labels, -_INT32, _INT32, f'truth item {index} labels (int32)')
+        check_range(ids, 0, _UINT32, f'truth item {index} ids (uint32)')
+        check_range(labels, -_INT32, _INT32, f'truth item {index} labels (int32)')
         columns = {'id': ids, 'label': labels}
         yield stamp, connection, _cloud2(columns, _TRUTH_FIELDS, _header(stamp, frame_id))
         last = stamp
@@ -422,7 +423,7 @@ def _pointcloud(
     frame: FeatureFrame, xy: np.ndarray, previous: FeatureFrame | None, header: Any
 ) -> Any:
     """VINS-Mono layout ``sensor_msgs/msg/PointCloud``."""
-    _check_range(
+    check_range(
         frame.ids,
         -decode.FLOAT32_EXACT_ID,
         decode.FLOAT32_EXACT_ID + 1,
@@ -452,7 +453,7 @@ def _pointcloud2(
 ) -> Any:
     """``sensor_msgs/msg/PointCloud2`` with fields id, u, v, x, y."""
     del previous  # no velocity fields in this layout
-    _check_range(frame.ids, 0, _UINT32, 'ids (uint32 field)')
+    check_range(frame.ids, 0, _UINT32, 'ids (uint32 field)')
     columns = {
         'id': frame.ids,
         'u': frame.uv[:, 0],
@@ -529,10 +530,3 @@ def _check_stamp(stamp: int, last: int | None, what: str) -> None:
         raise InputError(f'{what}: stamp_ns {stamp} outside [0, 2**31 s)')
     if last is not None and stamp <= last:
         raise InputError(f'{what}: stamp_ns {stamp} does not increase (previous {last})')
-
-
-def _check_range(values: np.ndarray, low: int, high: int, what: str) -> None:
-    """``low <= values < high``."""
-    bad = (values < low) | (values >= high)
-    if bad.any():
-        raise InputError(f'{what} out of range: {values[bad][:3].tolist()}')
