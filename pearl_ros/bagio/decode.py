@@ -221,7 +221,7 @@ def decode_fields(msg: Any, names: tuple[str, ...]) -> dict[str, np.ndarray]:
     """
     fields = {str(field.name): field for field in msg.fields}
     height, width = int(msg.height), int(msg.width)
-    point_step, row_step = int(msg.point_step), int(msg.row_step)
+    point_step = int(msg.point_step)
     order = '>' if msg.is_bigendian else '<'
     formats, offsets = [], []
     for name in names:
@@ -247,20 +247,36 @@ def decode_fields(msg: Any, names: tuple[str, ...]) -> dict[str, np.ndarray]:
     if height * width == 0:
         columns = zip(names, formats, strict=True)
         return {name: np.empty(0, dtype=fmt.newbyteorder('=')) for name, fmt in columns}
-    if row_step < width * point_step:
+    points = point_rows(msg).reshape(-1).view(point)
+    columns = zip(names, formats, strict=True)
+    return {name: points[name].astype(fmt.newbyteorder('=')) for name, fmt in columns}
+
+
+def point_rows(msg: Any) -> np.ndarray:
+    """The points of a PointCloud2 as ``(height * width, point_step)`` uint8 rows, row padding
+    (``row_step`` beyond ``width * point_step``) dropped.
+
+    Raises
+    ------
+    InputError
+        ``row_step`` shorter than a row of points, ``data`` shorter than ``height * row_step``.
+    """
+    height, width = int(msg.height), int(msg.width)
+    point_step, row_step = int(msg.point_step), int(msg.row_step)
+    data = _bytes(msg.data)
+    if height * width and row_step < width * point_step:
         raise InputError(
             f'PointCloud2 row_step {row_step} < width {width} * point_step {point_step}'
         )
-    data = _bytes(msg.data)
     if data.size < height * row_step:
         raise InputError(
             f'PointCloud2 data has {data.size} bytes, expected height {height} '
             f'* row_step {row_step}'
         )
+    if height * width == 0:
+        return np.empty((0, point_step), dtype=np.uint8)
     rows = data[: height * row_step].reshape(height, row_step)[:, : width * point_step]
-    points = np.ascontiguousarray(rows).reshape(-1).view(point)
-    columns = zip(names, formats, strict=True)
-    return {name: points[name].astype(fmt.newbyteorder('=')) for name, fmt in columns}
+    return np.ascontiguousarray(rows).reshape(height * width, point_step)
 
 
 def integer_ids(values: np.ndarray, what: str) -> np.ndarray:

@@ -148,15 +148,26 @@ def motion_labels(
     labels = decode.integer_ids(labels, 'motion_labels labels')
     check_range(ids, 0, 2**32, 'motion_labels ids (uint32)')
     check_range(labels, -(2**31), 2**31, 'motion_labels labels (int32)')
-    points = np.empty(size, dtype=LABEL_DTYPE)
-    points['id'] = ids
-    points['u'] = uv[:, 0]
-    points['v'] = uv[:, 1]
-    points['label'] = labels
-    offsets: dict[str, Any] = dict(LABEL_DTYPE.fields or {})  # name -> (dtype, offset)
+    columns = {'id': ids, 'u': uv[:, 0], 'v': uv[:, 1], 'label': labels}
+    return packed_cloud2(header, columns, LABEL_FIELDS, types)
+
+
+def packed_cloud2(header: Any, columns: dict[str, np.ndarray],
+                  layout: tuple[tuple[str, str, int], ...], types: MessageTypes) -> Any:
+    """An unorganised, packed, little-endian PointCloud2 of ``columns`` (N,) each.
+
+    ``layout`` lists the fields in order as ``(name, numpy type code, PointField datatype)``,
+    such as :data:`LABEL_FIELDS`; offsets follow from the packed numpy dtype.
+    """
+    dtype = np.dtype([(name, code) for name, code, _ in layout])
+    size = int(next(iter(columns.values())).size)
+    points = np.empty(size, dtype=dtype)
+    for name, _, _ in layout:
+        points[name] = columns[name]
+    offsets: dict[str, Any] = dict(dtype.fields or {})  # name -> (dtype, offset)
     fields = [
         types.PointField(name=name, offset=int(offsets[name][1]), datatype=datatype, count=1)
-        for name, _, datatype in LABEL_FIELDS
+        for name, _, datatype in layout
     ]
     return types.PointCloud2(
         header=header,
@@ -164,8 +175,8 @@ def motion_labels(
         width=size,
         fields=fields,
         is_bigendian=False,
-        point_step=LABEL_DTYPE.itemsize,
-        row_step=LABEL_DTYPE.itemsize * size,
+        point_step=dtype.itemsize,
+        row_step=dtype.itemsize * size,
         data=types.uint8s(points.view(np.uint8)),
         is_dense=True,
     )
@@ -274,25 +285,9 @@ def _select_pointcloud(msg: Any, keep: np.ndarray, types: MessageTypes, layout: 
 
 
 def _select_pointcloud2(msg: Any, keep: np.ndarray, types: MessageTypes) -> Any:
-    height, width = int(msg.height), int(msg.width)
-    point_step, row_step = int(msg.point_step), int(msg.row_step)
-    num_points = height * width
-    _check_keep(keep, num_points)
-    if num_points and row_step < width * point_step:
-        raise InputError(
-            f'PointCloud2 row_step {row_step} < width {width} * point_step {point_step}'
-        )
-    data = _as_uint8(msg.data)
-    if data.size < height * row_step:
-        raise InputError(
-            f'PointCloud2 data has {data.size} bytes, expected height {height} '
-            f'* row_step {row_step}'
-        )
-    if num_points:
-        rows = data[: height * row_step].reshape(height, row_step)[:, : width * point_step]
-        points = rows.reshape(num_points, point_step)[keep]
-    else:
-        points = np.empty((0, point_step), dtype=np.uint8)
+    point_step = int(msg.point_step)
+    _check_keep(keep, int(msg.height) * int(msg.width))
+    points = decode.point_rows(msg)[keep]
     size = int(points.shape[0])
     return types.PointCloud2(
         header=msg.header,
@@ -309,14 +304,6 @@ def _select_pointcloud2(msg: Any, keep: np.ndarray, types: MessageTypes) -> Any:
         data=types.uint8s(points.reshape(-1)),
         is_dense=bool(msg.is_dense),
     )
-
-
-def _as_uint8(data: Any) -> np.ndarray:
-    """A uint8 view of ``data``: numpy array (rosbags), array.array or bytes (rclpy), list."""
-    try:
-        return np.frombuffer(memoryview(data).cast('B'), dtype=np.uint8)
-    except TypeError:
-        return np.asarray(data, dtype=np.uint8).reshape(-1)
 
 
 def _check_keep(keep: np.ndarray, expected: int) -> None:

@@ -25,7 +25,7 @@ from __future__ import annotations
 import heapq
 import shutil
 import tempfile
-from collections.abc import Callable, Iterable, Iterator, Mapping
+from collections.abc import Callable, Iterable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
@@ -37,7 +37,7 @@ from rosbags.serde import SerdeError
 from rosbags.typesys import Stores, get_typestore
 
 from pearl_ros.bagio import decode
-from pearl_ros.bagio.encode import check_range
+from pearl_ros.bagio.encode import MessageTypes, check_range, packed_cloud2
 from pearl_ros.bagio.reader import POINTCLOUD, POINTCLOUD2, TYPESTORE, FeatureFrame, one_line
 from pearl_ros.core.errors import BagError, InputError
 
@@ -55,7 +55,7 @@ _Point32: Any = TYPESTORE.types['geometry_msgs/msg/Point32']
 _ChannelFloat32: Any = TYPESTORE.types['sensor_msgs/msg/ChannelFloat32']
 _PointField: Any = TYPESTORE.types['sensor_msgs/msg/PointField']
 _PointCloud: Any = TYPESTORE.types[POINTCLOUD]
-_PointCloud2: Any = TYPESTORE.types[POINTCLOUD2]
+_TYPES = MessageTypes.from_typestore(TYPESTORE)
 
 # Little-endian point layouts written for PointCloud2 (name, numpy type, PointField datatype).
 _FEATURE_FIELDS = (
@@ -484,27 +484,7 @@ def velocities(frame: FeatureFrame, previous: FeatureFrame | None) -> np.ndarray
 def _cloud2(
     columns: dict[str, np.ndarray], layout: tuple[tuple[str, str, int], ...], header: Any
 ) -> Any:
-    dtype = np.dtype([(name, code) for name, code, _ in layout])
-    size = next(iter(columns.values())).size
-    points = np.empty(size, dtype=dtype)
-    for name, _, _ in layout:
-        points[name] = columns[name]
-    offsets: Mapping[str, tuple[Any, ...]] = dtype.fields or {}  # name -> (dtype, offset)
-    fields = [
-        _PointField(name=name, offset=offsets[name][1], datatype=datatype, count=1)
-        for name, _, datatype in layout
-    ]
-    return _PointCloud2(
-        header=header,
-        height=1,
-        width=size,
-        fields=fields,
-        is_bigendian=False,
-        point_step=dtype.itemsize,
-        row_step=dtype.itemsize * size,
-        data=points.view(np.uint8).reshape(-1),
-        is_dense=True,
-    )
+    return packed_cloud2(header, columns, layout, _TYPES)
 
 
 def _header(stamp_ns: int, frame_id: str) -> Any:
