@@ -97,13 +97,7 @@ def decode_pointcloud(
     layout = check_layout(layout)
     camera_id = check_camera_id(camera_id)
     num_points = len(msg.points)
-    names = [str(channel.name) for channel in msg.channels]
-    values = [np.asarray(channel.values, dtype=np.float64) for channel in msg.channels]
-    for name, column in zip(names, values, strict=True):
-        if column.shape != (num_points,):
-            raise InputError(
-                f'PointCloud channel {name!r} has {column.size} values for {num_points} points'
-            )
+    names, values = channels(msg, np.float64)
     if num_points == 0:
         return _empty()
 
@@ -145,6 +139,25 @@ def decode_pointcloud(
     ids_int = integer_ids(ids, 'PointCloud feature ids')
     check_features(ids_int, uv, 'PointCloud')
     return ids_int, uv
+
+
+def channels(msg: Any, dtype: Any) -> tuple[list[str], list[np.ndarray]]:
+    """Names and values (as ``dtype``) of a PointCloud's channels, each one value per point.
+
+    Raises
+    ------
+    InputError
+        A channel whose length is not the point count.
+    """
+    num_points = len(msg.points)
+    names = [str(channel.name) for channel in msg.channels]
+    values = [np.asarray(channel.values, dtype=dtype) for channel in msg.channels]
+    for name, column in zip(names, values, strict=True):
+        if column.shape != (num_points,):
+            raise InputError(
+                f'PointCloud channel {name!r} has {column.size} values for {num_points} points'
+            )
+    return names, values
 
 
 def decode_pointcloud2(msg: Any) -> tuple[np.ndarray, np.ndarray]:

@@ -251,13 +251,7 @@ def _select_pointcloud(msg: Any, keep: np.ndarray, types: MessageTypes, layout: 
     layout = decode.check_layout(layout)
     camera_id = decode.check_camera_id(camera_id)
     num_points = len(msg.points)
-    names = [str(channel.name) for channel in msg.channels]
-    values = [np.asarray(channel.values, dtype=np.float32) for channel in msg.channels]
-    for name, column in zip(names, values, strict=True):
-        if column.shape != (num_points,):
-            raise InputError(
-                f'PointCloud channel {name!r} has {column.size} values for {num_points} points'
-            )
+    names, values = decode.channels(msg, np.float32)
     if layout == 'auto' and num_points:
         layout = 'vins_mono' if _VINS_MONO_ID in names else 'vins_fusion'
     if layout == 'vins_fusion' and num_points:
