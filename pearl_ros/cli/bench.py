@@ -439,6 +439,12 @@ def _build_parser() -> argparse.ArgumentParser:
         'failures (result energy above the truth\'s) and energy failures',
     )
     hop.add_argument('--only', nargs='+', metavar='NAME', help='run these sequences only')
+    hop.add_argument('--outliers', type=float, default=None, metavar='SHARE',
+                     help='add random-walk outlier tracks making up SHARE of all tracks (3 px '
+                     'steps); true points scored on their own, outliers by recall')
+    hop.add_argument('--every', type=int, default=1, metavar='N',
+                     help='every Nth sequence only (with --outliers the robot-data benchmark '
+                     'uses 5)')
     hop.add_argument(
         '--set',
         action='append',
@@ -474,6 +480,9 @@ def _build_parser() -> argparse.ArgumentParser:
                          'window (default 0)')
     latency.add_argument('--set', action='append', default=[], metavar='NAME=VALUE',
                          help='override a PearlConfig or OnlineConfig field (repeatable)')
+    from pearl_ros.cli import bench_sets
+
+    bench_sets.add_commands(commands)
     return parser
 
 
@@ -546,6 +555,8 @@ def _hopkins155(args: argparse.Namespace) -> int:
 
     if args.jobs < 1:
         raise InputError(f'--jobs must be >= 1, got {args.jobs}')
+    if args.outliers is not None and not 0.0 <= args.outliers < 1.0:
+        raise InputError(f'--outliers must be in [0, 1), got {args.outliers}')
     from pearl_ros.online.config import OnlineConfig
     from pearl_ros.pipeline import settings
 
@@ -564,8 +575,15 @@ def _hopkins155(args: argparse.Namespace) -> int:
         names = list(dict.fromkeys(args.only))
     else:
         names = sequence_names(root)
+    if args.every < 1:
+        raise InputError(f'--every must be >= 1, got {args.every}')
+    names = names[::args.every]
     if not names:
         raise InputError(f'no Hopkins155 sequences (*/*_truth.mat) in {root}')
+    if args.outliers is not None:
+        from pearl_ros.cli.bench_sets import hopkins_outliers
+
+        return hopkins_outliers(args, root, names)
     tasks = [
         _Task(str(root), name, index[name], args.seed, args.frames, config, args.oracle)
         for name in names
@@ -627,7 +645,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of ``pearl_bench``; returns the exit code."""
     try:
         args = _build_parser().parse_args(argv)
-        commands = {'hopkins155': _hopkins155, 'stream': _stream, 'latency': _latency}
+        from pearl_ros.cli import bench_sets
+
+        commands = {'hopkins155': _hopkins155, 'stream': _stream, 'latency': _latency,
+                    'adelaide': bench_sets.adelaide, 'kt3dmoseg': bench_sets.kt3dmoseg,
+                    'synthetic': bench_sets.synthetic, 'suite': bench_sets.suite}
         return commands[args.dataset](args)
     except PearlError as err:
         print(f'error: {err}', file=sys.stderr)

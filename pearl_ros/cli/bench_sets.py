@@ -1,0 +1,250 @@
+"""``pearl_bench`` on data shaped like a robot's, and ``pearl_bench suite``: every set at once.
+
+AdelaideRMF two-view pairs with mismatches (Wong et al., ICCV 2011), KT3DMoSeg driving clips
+(Xu, Cheong & Li, CVPR 2018), Hopkins155 (Tron & Vidal, CVPR 2007) with gross outlier tracks,
+and robot-like synthetic streams (:mod:`pearl_ros.datasets.robot`) run through the code paths
+of the node: batch :func:`~pearl_ros.core.pearl.fit`, two-frame fits, and the online segmenter
+frame by frame (:mod:`pearl_ros.evaluation.sets`). ``suite`` runs them all, with Hopkins155 all
+frames, two frames and streamed, and prints one line per set, so that a change that helps one
+set and hurts another shows in one run.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+import time
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+from pearl_ros.core.errors import InputError
+from pearl_ros.evaluation.sets import Score, Task, format_summaries, run_task, summarise
+
+# Where suite looks for each set, below --data.
+SET_FOLDERS = {'hopkins155': 'hopkins155', 'kt3dmoseg': 'kt3dmoseg_dev',
+               'adelaide': 'adelaidermf_f_dev'}
+SUITE_OUTLIERS = 0.2  # share of outlier tracks added to every fifth Hopkins155 sequence
+SUITE_EVERY = 5
+SUITE_ROBOT_SEEDS = (0, 1, 2)
+
+
+def add_commands(commands: Any) -> None:
+    """The set subcommands and ``suite``, on ``pearl_bench``'s subparsers."""
+    def common(sub: argparse.ArgumentParser) -> None:
+        sub.add_argument('--jobs', type=int, default=1, metavar='N', help='worker processes')
+        sub.add_argument('--seed', type=int, default=0, help='base random seed (default 0)')
+        sub.add_argument('--items', action='store_true', help='also print one line per item')
+        sub.add_argument('--set', action='append', default=[], metavar='NAME=VALUE',
+                         help='override a parameter or solver.NAME setting (repeatable)')
+
+    ade = commands.add_parser(
+        'adelaide', help='AdelaideRMF F: two-view pairs with 30-70%% mismatches',
+        description='Fit fundamental matrices to every AdelaideRMF pair; mismatches are scored '
+        'as a group of their own (a point labelled -1 is right only where the truth says 0).')
+    ade.add_argument('path', metavar='PATH', help='folder of pair .mat files')
+    common(ade)
+    kt = commands.add_parser(
+        'kt3dmoseg', help='KT3DMoSeg: KITTI driving clips with partial tracks',
+        description='Segment every KT3DMoSeg clip: all = the points seen in every frame, two = '
+        'first and last frame (fundamental), stream = frame by frame through the online '
+        'segmenter, final frame scored.')
+    kt.add_argument('path', metavar='PATH', help='folder of *_Tracks.mat clips')
+    kt.add_argument('--frames', choices=('all', 'two', 'stream'), default='stream')
+    common(kt)
+    syn = commands.add_parser(
+        'synthetic', help='robot-like synthetic streams (perspective camera, cars, people, '
+        'outlier tracks)',
+        description='Stream robot-like synthetic scenes through the online segmenter and score '
+        'the final frame, outlier tracks as a group of their own.')
+    syn.add_argument('--scenes', type=int, nargs='+', default=list(SUITE_ROBOT_SEEDS),
+                     metavar='SEED', help='scene seeds (default 0 1 2)')
+    common(syn)
+    suite = commands.add_parser(
+        'suite', help='every data set in one table',
+        description='Hopkins155 (all frames, two frames, stream; every fifth sequence with 20%% '
+        'outlier tracks), KT3DMoSeg (all, two, stream), AdelaideRMF F and robot-like synthetic '
+        'streams, with the same parameters: one line per set.')
+    suite.add_argument('--data', metavar='DIR', default=None,
+                       help='folder holding hopkins155/, kt3dmoseg_dev/, adelaidermf_f_dev/ '
+                       '(default: $PEARL_DATA, else ../shared/data)')
+    suite.add_argument('--only', nargs='+', metavar='SET', help='run these sets only (names '
+                       'as in the table, e.g. adelaidermf_f kt3dmoseg_two)')
+    common(suite)
+
+
+def _check(args: argparse.Namespace) -> None:
+    if args.jobs < 1:
+        raise InputError(f'--jobs must be >= 1, got {args.jobs}')
+    if args.seed < 0:
+        raise InputError(f'--seed must be >= 0, got {args.seed}')
+
+
+def _configs(args: argparse.Namespace) -> tuple[dict[str, Any], Any, Any]:
+    from pearl_ros.cli.bench import _online_configs
+
+    return _online_configs(args.set)
+
+
+def _report(scores: list[Score], title: str, items: bool) -> None:
+    if items:
+        for s in scores:
+            extra = ('' if math.isnan(s.outlier_recall_pct)
+                     else f' outliers -1 {s.outlier_recall_pct:.1f}%')
+            print(f'{s.dataset:<22}{s.name:<24}{s.error_pct:7.2f}%  motions '
+                  f'{s.motions_found}/{s.motions_true}{extra}  {s.seconds:.3f}s')
+        print()
+    print(title)
+    print(format_summaries(summarise(scores)))
+
+
+def _run(function: Any, tasks: Sequence[Any], jobs: int) -> list[Any]:
+    from pearl_ros.cli.bench import _parallel
+
+    out = []
+    for done, result in enumerate(_parallel(function, tasks, jobs), start=1):
+        out.append(result)
+        sys.stderr.write(f'\r{done}/{len(tasks)} ')
+    sys.stderr.write('\n')
+    return out
+
+
+def _title(what: str, overrides: dict[str, Any], online: Any) -> str:
+    title = f'{what} (streams: window {online.window}, budget {online.budget_ms:g} ms)'
+    if overrides:
+        title += ', ' + ', '.join(f'{k}={v}' for k, v in overrides.items())
+    return title
+
+
+def adelaide(args: argparse.Namespace) -> int:
+    from pearl_ros.datasets.adelaide import pair_paths
+
+    _check(args)
+    overrides, config, online = _configs(args)
+    tasks = [Task('adelaide', str(p), 'two', config, online, args.seed)
+             for p in pair_paths(args.path)]
+    _report(_run(run_task, tasks, args.jobs), _title('PEaRL on AdelaideRMF F', overrides,
+                                                     online), args.items)
+    return 0
+
+
+def kt3dmoseg(args: argparse.Namespace) -> int:
+    from pearl_ros.datasets.kt3dmoseg import clip_paths
+
+    _check(args)
+    overrides, config, online = _configs(args)
+    tasks = [Task('kt3dmoseg', str(p), args.frames, config, online, args.seed)
+             for p in clip_paths(args.path)]
+    _report(_run(run_task, tasks, args.jobs),
+            _title(f'PEaRL on KT3DMoSeg, frames {args.frames}', overrides, online), args.items)
+    return 0
+
+
+def synthetic(args: argparse.Namespace) -> int:
+    _check(args)
+    if min(args.scenes) < 0:
+        raise InputError(f'--scenes must be >= 0, got {min(args.scenes)}')
+    overrides, config, online = _configs(args)
+    tasks = [Task('robot', str(s), 'stream', config, online, args.seed) for s in args.scenes]
+    _report(_run(run_task, tasks, args.jobs),
+            _title('Online PEaRL on robot-like synthetic streams', overrides, online),
+            args.items)
+    return 0
+
+
+def hopkins_outliers(args: argparse.Namespace, root: Path, names: list[str]) -> int:
+    """``pearl_bench hopkins155 PATH --outliers SHARE``: outlier tracks added."""
+    overrides, config, online = _configs(args)
+    tasks = [Task('hopkins_outliers', str(root / n / f'{n}_truth.mat'), 'all', config, online,
+                  args.seed, args.outliers) for n in names]
+    _report(_run(run_task, tasks, args.jobs),
+            _title(f'PEaRL on Hopkins155 with {100 * args.outliers:g}% outlier tracks',
+                   overrides, online), getattr(args, 'items', False))
+    return 0
+
+
+def _suite_item(item: tuple[str, Any]) -> Score:
+    """One suite item in a worker: a Hopkins batch or stream task, or a set task."""
+    kind, task = item
+    if kind == 'set':
+        return run_task(task)
+    if kind == 'hopkins':
+        from pearl_ros.cli.bench import _run_one
+
+        row = _run_one(task)
+        return Score(f'hopkins155_{task.frames}', row.name, row.error_pct, row.motions_true,
+                     row.motions_found, row.points, row.seconds)
+    from pearl_ros.cli.bench_stream import stream_one
+
+    srow = stream_one(task)
+    seconds = sum(srow.latencies_ms) / 1000.0 / max(len(srow.latencies_ms), 1)
+    return Score('hopkins155_stream', srow.name, srow.final_pct, srow.motions_true,
+                 srow.motions_found, srow.points, seconds)
+
+
+def _suite_items(data: Path, args: argparse.Namespace) -> list[tuple[str, Any]]:
+    import dataclasses
+
+    from pearl_ros.cli.bench import _Task
+    from pearl_ros.cli.bench_stream import StreamTask
+    from pearl_ros.datasets.adelaide import pair_paths
+    from pearl_ros.datasets.hopkins import sequence_names
+    from pearl_ros.datasets.kt3dmoseg import clip_paths
+
+    _, config, online = _configs(args)
+    hop = data / SET_FOLDERS['hopkins155']
+    everything = sequence_names(hop, include_dancing=True)
+    names = sequence_names(hop)
+    two = dataclasses.replace(config, model='fundamental')
+    items: list[tuple[str, Any]] = []
+    for frames, cfg in (('all', config), ('two', two)):
+        items += [('hopkins', _Task(str(hop), n, everything.index(n), args.seed, frames, cfg))
+                  for n in names]
+    items += [('stream', StreamTask(str(hop), n, config, online)) for n in names]
+    items += [('set', Task('hopkins_outliers', str(hop / n / f'{n}_truth.mat'), 'all', config,
+                           online, args.seed, SUITE_OUTLIERS)) for n in names[::SUITE_EVERY]]
+    for mode in ('all', 'two', 'stream'):
+        items += [('set', Task('kt3dmoseg', str(p), mode, config, online, args.seed))
+                  for p in clip_paths(data / SET_FOLDERS['kt3dmoseg'])]
+    items += [('set', Task('adelaide', str(p), 'two', config, online, args.seed))
+              for p in pair_paths(data / SET_FOLDERS['adelaide'])]
+    items += [('set', Task('robot', str(s), 'stream', config, online, args.seed))
+              for s in SUITE_ROBOT_SEEDS]
+    return items
+
+
+def _dataset_of(item: tuple[str, Any]) -> str:
+    kind, task = item
+    if kind == 'hopkins':
+        return f'hopkins155_{task.frames}'
+    if kind == 'stream':
+        return 'hopkins155_stream'
+    return {'hopkins_outliers': 'hopkins155_outliers', 'kt3dmoseg': f'kt3dmoseg_{task.mode}',
+            'adelaide': 'adelaidermf_f', 'robot': 'robot_synthetic'}[task.kind]
+
+
+def suite(args: argparse.Namespace) -> int:
+    import os
+
+    _check(args)
+    data = Path(args.data or os.environ.get('PEARL_DATA') or
+                Path(__file__).resolve().parents[2].parent / 'shared' / 'data')
+    if not data.is_dir():
+        raise InputError(f'data folder not found: {data} (give --data or set PEARL_DATA)')
+    items = _suite_items(data, args)
+    if args.only:
+        known = sorted({_dataset_of(i) for i in items})
+        unknown = sorted(set(args.only) - set(known))
+        if unknown:
+            raise InputError(f'unknown set {unknown[0]!r} (known: {", ".join(known)})')
+        items = [i for i in items if _dataset_of(i) in args.only]
+    # The slowest items first, so that the workers finish together.
+    order = sorted(range(len(items)), key=lambda i: items[i][0] != 'set')
+    start = time.perf_counter()
+    done = _run(_suite_item, [items[i] for i in order], args.jobs)
+    scores = [s for _, s in sorted(zip(order, done, strict=True))]
+    overrides, _, online = _configs(args)
+    _report(scores, _title(f'PEaRL suite ({data})', overrides, online)
+            + f', {time.perf_counter() - start:.0f} s', args.items)
+    return 0

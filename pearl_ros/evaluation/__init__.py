@@ -1,0 +1,1 @@
+"""Benchmark tasks on data sets shaped like a robot's, ROS-free (``pearl_bench`` runs them)."""

@@ -1,0 +1,235 @@
+"""One task per benchmark item (a pair, a clip, a sequence, a stream), scored the same way.
+
+Every task runs the code a user runs: batch and two-frame items call
+:func:`pearl_ros.core.pearl.fit`, streams go frame by frame through
+:class:`pearl_ros.online.segmenter.OnlineSegmenter`, the node's online code. Misclassification
+treats outliers as a group of their own where the data labels them (a point labelled ``-1`` is
+right only where the truth says outlier), as the AdelaideRMF protocol does (Wong et al., ICCV
+2011). Tasks are top-level functions of picklable arguments, so worker processes can run them.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+import zlib
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from pearl_ros.core.config import PearlConfig
+from pearl_ros.core.errors import PearlError
+from pearl_ros.core.labels import OUTLIER
+from pearl_ros.core.metrics import misclassification
+from pearl_ros.online.config import OnlineConfig
+
+FRAME_NS = 33_333_333  # 30 Hz stamps for streamed items
+MODES = ('all', 'two', 'stream')
+
+
+@dataclass(frozen=True)
+class Score:
+    """The outcome on one item.
+
+    Attributes
+    ----------
+    dataset, name : str
+    error_pct : float, misclassification in percent (final frame for streams)
+    motions_true, motions_found : int
+    points : int, scored points
+    seconds : float, wall time of the fit (for streams: mean per frame)
+    outlier_recall_pct : float, percent of true outliers labelled -1 (NaN without outliers)
+    rejected_pct : float, percent of true motion points labelled -1
+    """
+
+    dataset: str
+    name: str
+    error_pct: float
+    motions_true: int
+    motions_found: int
+    points: int
+    seconds: float
+    outlier_recall_pct: float = math.nan
+    rejected_pct: float = math.nan
+
+
+@dataclass(frozen=True)
+class Task:
+    """One item: ``kind`` names the task function, ``source`` a file or a seed."""
+
+    kind: str
+    source: str
+    mode: str
+    config: PearlConfig
+    online: OnlineConfig
+    seed: int = 0
+    outliers: float = 0.0
+
+
+def score(dataset: str, name: str, pred: np.ndarray, truth: np.ndarray, seconds: float,
+          motions_found: int, outliers_apart: bool = False) -> Score:
+    """A :class:`Score` of ``pred`` against ``truth`` (``-1`` = outlier in both).
+
+    With ``outliers_apart`` the error counts the true motion points only (a true point
+    labelled -1 is wrong) and the outliers are judged by recall alone, as when outlier tracks
+    were added to a clean set.
+    """
+    pred, truth = np.asarray(pred), np.asarray(truth)
+    true = truth != OUTLIER
+    if outliers_apart:
+        error = misclassification(pred[true], truth[true])
+    else:
+        error = misclassification(pred, truth)
+    recall = 100.0 * float(np.mean(pred[~true] == OUTLIER)) if np.any(~true) else math.nan
+    rejected = 100.0 * float(np.mean(pred[true] == OUTLIER)) if np.any(true) else math.nan
+    return Score(dataset, name, 100.0 * error, int(np.unique(truth[true]).size),
+                 int(motions_found), int(truth.size), seconds, recall, rejected)
+
+
+def run_task(task: Task) -> Score:
+    """Run one task; top level so that worker processes can import it."""
+    runner = _RUNNERS[task.kind]
+    try:
+        return runner(task)
+    except PearlError as err:
+        raise type(err)(f'{Path(task.source).name}: {err}') from err
+
+
+def _fit(tracks: np.ndarray, config: PearlConfig, seed: int) -> tuple[np.ndarray, int, float]:
+    from pearl_ros.core.pearl import fit
+
+    start = time.perf_counter()
+    result = fit(tracks, config, rng=np.random.default_rng(seed))
+    return result.labels, result.num_models, time.perf_counter() - start
+
+
+def _stream(frames: list[tuple[np.ndarray, np.ndarray, np.ndarray]], config: PearlConfig,
+            online: OnlineConfig) -> tuple[np.ndarray, np.ndarray, int, float]:
+    """Feed (ids, uv, truth) frames to an online segmenter: the final frame's labels and truth,
+    its motion count, and the mean seconds per frame."""
+    from pearl_ros.online.segmenter import OnlineSegmenter
+
+    segmenter = OnlineSegmenter(config, online)
+    start = time.perf_counter()
+    for t, (ids, uv, _) in enumerate(frames):
+        result = segmenter.process(1_000_000_000 + t * FRAME_NS, ids, uv)
+    seconds = (time.perf_counter() - start) / max(len(frames), 1)
+    return result.labels, frames[-1][2], result.motions, seconds
+
+
+def _adelaide(task: Task) -> Score:
+    """An AdelaideRMF pair, one fundamental-matrix fit; mismatches are the outlier group."""
+    import dataclasses
+
+    from pearl_ros.datasets.adelaide import load_pair
+
+    pair = load_pair(task.source)
+    config = dataclasses.replace(task.config, model='fundamental')
+    labels, found, seconds = _fit(pair.tracks, config, task.seed)
+    return score('adelaidermf_f', pair.name, labels, pair.labels, seconds, found)
+
+
+def _kt3dmoseg(task: Task) -> Score:
+    """A KT3DMoSeg clip: ``all`` fits the points seen in every frame, ``two`` the first and
+    last frame (fundamental), ``stream`` feeds every frame and scores the final one."""
+    import dataclasses
+
+    from pearl_ros.datasets.kt3dmoseg import load_clip
+
+    clip = load_clip(task.source)
+    dataset = f'kt3dmoseg_{task.mode}'
+    if task.mode == 'stream':
+        online = dataclasses.replace(task.online, seed=task.seed)
+        labels, truth, found, seconds = _stream(list(clip.frames()), task.config, online)
+        return score(dataset, clip.name, labels, truth, seconds, found)
+    if task.mode == 'two':
+        tracks, truth = clip.two_frames()
+        config = dataclasses.replace(task.config, model='fundamental')
+    else:
+        (tracks, truth), config = clip.complete(), task.config
+    labels, found, seconds = _fit(tracks, config, task.seed)
+    return score(dataset, clip.name, labels, truth, seconds, found)
+
+
+def _hopkins_outliers(task: Task) -> Score:
+    """A Hopkins155 sequence with random-walk outlier tracks added (``task.outliers`` of all
+    tracks); true points scored on their own, outliers by recall."""
+    from pearl_ros.datasets.hopkins import load_mat
+    from pearl_ros.datasets.outliers import add_outlier_tracks
+
+    seq = load_mat(task.source)
+    # The outlier tracks depend on the sequence and --seed only, never on the worker.
+    rng = np.random.default_rng(np.random.SeedSequence([task.seed, zlib.crc32(seq.name.encode())]))
+    tracks, truth = add_outlier_tracks(seq.tracks, seq.labels, task.outliers, rng)
+    labels, found, seconds = _fit(tracks, task.config, task.seed)
+    return score('hopkins155_outliers', seq.name, labels, truth, seconds, found,
+                 outliers_apart=True)
+
+
+def _robot(task: Task) -> Score:
+    """A robot-like synthetic stream (:mod:`pearl_ros.datasets.robot`) of seed ``source``,
+    final frame scored, its outlier tracks a group of their own."""
+    import dataclasses
+
+    from pearl_ros.datasets.robot import robot_stream
+
+    seed = int(task.source)
+    frames = [(f.ids, f.uv, f.truth) for f in robot_stream(seed=seed)]
+    online = dataclasses.replace(task.online, seed=task.seed)
+    labels, truth, found, seconds = _stream(frames, task.config, online)
+    return score('robot_synthetic', f'seed{seed}', labels, truth, seconds, found)
+
+
+_RUNNERS = {
+    'adelaide': _adelaide,
+    'kt3dmoseg': _kt3dmoseg,
+    'hopkins_outliers': _hopkins_outliers,
+    'robot': _robot,
+}
+KINDS = tuple(_RUNNERS)
+
+
+@dataclass(frozen=True)
+class Summary:
+    """One data set's line of the suite table."""
+
+    dataset: str
+    items: int
+    mean_pct: float
+    median_pct: float
+    motions_right_pct: float
+    outlier_recall_pct: float
+    rejected_pct: float
+    seconds: float  # median per item (per frame for streams)
+
+
+def summarise(scores: list[Score]) -> list[Summary]:
+    """One :class:`Summary` per data set, in the order they first appear."""
+    out = []
+    for dataset in dict.fromkeys(s.dataset for s in scores):
+        mine = [s for s in scores if s.dataset == dataset]
+        errors = np.array([s.error_pct for s in mine])
+        recall = [s.outlier_recall_pct for s in mine if not math.isnan(s.outlier_recall_pct)]
+        rejected = [s.rejected_pct for s in mine if not math.isnan(s.rejected_pct)]
+        out.append(Summary(
+            dataset, len(mine), float(errors.mean()), float(np.median(errors)),
+            100.0 * float(np.mean([s.motions_found == s.motions_true for s in mine])),
+            float(np.mean(recall)) if recall else math.nan,
+            float(np.mean(rejected)) if rejected else math.nan,
+            float(np.median([s.seconds for s in mine]))))
+    return out
+
+
+def format_summaries(summaries: list[Summary]) -> str:
+    """The suite table: one line per data set."""
+    head = (f'{"set":<22}{"items":>6}{"mean %":>9}{"median %":>10}{"motions ok %":>14}'
+            f'{"outl. -1 %":>12}{"true -1 %":>11}{"s/item":>9}')
+    lines = [head]
+    for s in summaries:
+        def num(value: float, spec: str = '.2f') -> str:
+            return '-' if math.isnan(value) else format(value, spec)
+        lines.append(f'{s.dataset:<22}{s.items:>6}{s.mean_pct:>9.2f}{s.median_pct:>10.2f}'
+                     f'{s.motions_right_pct:>14.1f}{num(s.outlier_recall_pct, ".1f"):>12}'
+                     f'{num(s.rejected_pct):>11}{s.seconds:>9.3f}')
+    return '\n'.join(lines)

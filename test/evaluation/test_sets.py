@@ -1,0 +1,145 @@
+"""Benchmark tasks on robot-shaped data: the scoring rule, each task on files written here, and
+the ``pearl_bench`` commands that run them."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+import scipy.io
+from conftest import make_affine_scene
+
+from pearl_ros.cli.bench import main
+from pearl_ros.core.config import PearlConfig
+from pearl_ros.core.errors import InputError
+from pearl_ros.evaluation.sets import Task, run_task, score, summarise
+from pearl_ros.online.config import OnlineConfig
+
+
+def test_score_counts_outliers_as_a_group_of_their_own() -> None:
+    truth = np.array([0, 0, 0, 1, 1, -1, -1, -1])
+    same = score('s', 'x', np.array([5, 5, 5, 2, 2, -1, -1, -1]), truth, 1.0, 2)
+    assert same.error_pct == 0.0 and same.outlier_recall_pct == 100.0
+    assert same.rejected_pct == 0.0 and same.motions_true == 2
+    # One true outlier given to motion 5 and one true point rejected: 2 of 8 wrong.
+    two = score('s', 'x', np.array([5, 5, -1, 2, 2, 5, -1, -1]), truth, 1.0, 2)
+    assert two.error_pct == pytest.approx(100.0 * 2 / 8)
+    assert two.outlier_recall_pct == pytest.approx(100.0 * 2 / 3)
+    assert two.rejected_pct == pytest.approx(100.0 * 1 / 5)
+
+
+def test_score_with_outliers_apart_judges_true_points_alone() -> None:
+    truth = np.array([0, 0, 1, 1, -1, -1])
+    # Outliers given to motions cost nothing in the error, only in the recall.
+    result = score('s', 'x', np.array([0, 0, 1, -1, 0, 1]), truth, 1.0, 2, outliers_apart=True)
+    assert result.error_pct == pytest.approx(25.0)  # one of four true points rejected
+    assert result.outlier_recall_pct == 0.0
+
+
+def test_summaries_average_per_set_and_count_right_motion_numbers() -> None:
+    scores = [score('a', 'x', np.array([0, 1]), np.array([0, 1]), 1.0, 2),
+              score('a', 'y', np.array([0, 0]), np.array([0, 1]), 3.0, 1),
+              score('b', 'z', np.array([0, 0]), np.array([0, 0]), 2.0, 1)]
+    a, b = summarise(scores)
+    assert (a.dataset, a.items, a.mean_pct, a.motions_right_pct, a.seconds) == (
+        'a', 2, 25.0, 50.0, 2.0)
+    assert math.isnan(a.outlier_recall_pct)
+    assert (b.dataset, b.items, b.mean_pct) == ('b', 1, 0.0)
+
+
+def _write_clip(path: Path, frames: int = 8) -> np.ndarray:
+    """A KT3DMoSeg-format clip of two affine bodies, some tracks missing at either end."""
+    tracks, labels = make_affine_scene((60, 50), frames, noise=0.3, seed=2)
+    visible = np.ones(tracks.shape[:2], dtype=bool)
+    visible[:2, ::7] = False  # born late
+    visible[-2:, 3::9] = False  # lost early
+    y = np.concatenate([tracks, np.ones(tracks.shape[:2] + (1,))], axis=2)
+    y = np.transpose(y, (2, 1, 0)) * visible.T[None]
+    scipy.io.savemat(str(path), {'Data': {'ySparse': y, 'visibleSparse': visible.T.astype(float),
+                                          'GtLabel': labels + 1.0}})
+    return labels
+
+
+@pytest.mark.parametrize('mode', ['all', 'two', 'stream'])
+def test_a_clip_of_two_bodies_is_segmented_in_every_mode(tmp_path: Path, mode: str) -> None:
+    _write_clip(tmp_path / 'Seq001_Clip01_Tracks.mat')
+    task = Task('kt3dmoseg', str(tmp_path / 'Seq001_Clip01_Tracks.mat'), mode, PearlConfig(),
+                OnlineConfig(budget_ms=0.0))
+    result = run_task(task)
+    assert result.dataset == f'kt3dmoseg_{mode}' and result.name == 'Seq001_Clip01'
+    assert result.motions_true == 2
+    assert result.error_pct < 5.0, result
+
+
+def _write_pair(path: Path, mismatches: int = 0) -> np.ndarray:
+    """An AdelaideRMF-format pair: two boxes of points moved apart between the shots, seen by
+    a pinhole camera (f 500 px), plus ``mismatches`` random matches labelled 0."""
+    rng = np.random.default_rng(4)
+    k = np.array([[500.0, 0, 320], [0, 500.0, 240], [0, 0, 1]])
+    views, labels = [], []
+    for body, (shift, turn) in enumerate((([0.4, 0.0, 0.1], 0.10), ([-0.5, 0.2, 0.0], -0.15))):
+        points = rng.uniform(-1, 1, (70, 3)) * [1.0, 0.8, 0.6] + [1.6 * body - 0.8, 0, 6.0]
+        c, s = np.cos(turn), np.sin(turn)
+        moved = points @ np.array([[c, 0, s], [0, 1, 0], [-s, 0, c]]).T + shift
+        views.append([(p @ k.T)[:, :2] / p[:, 2:] for p in (points, moved)])
+        labels.append(np.full(70, body + 1))
+    x1 = np.concatenate([v[0] for v in views]) + rng.normal(0, 0.3, (140, 2))
+    x2 = np.concatenate([v[1] for v in views]) + rng.normal(0, 0.3, (140, 2))
+    x1 = np.concatenate([x1, rng.uniform(0, 640, (mismatches, 2))])
+    x2 = np.concatenate([x2, rng.uniform(0, 640, (mismatches, 2))])
+    label = np.concatenate(labels + [np.zeros(mismatches, int)])
+    one = np.ones((1, x1.shape[0]))
+    scipy.io.savemat(str(path), {'data': np.vstack([x1.T, one, x2.T, one]), 'label': label[None]})
+    return label
+
+
+def test_a_clean_pair_of_two_motions_is_segmented(tmp_path: Path) -> None:
+    _write_pair(tmp_path / 'boxes.mat')
+    result = run_task(Task('adelaide', str(tmp_path / 'boxes.mat'), 'two', PearlConfig(),
+                           OnlineConfig()))
+    assert result.dataset == 'adelaidermf_f' and result.motions_true == 2
+    assert result.error_pct < 5.0, result
+
+
+def test_pearl_bench_adelaide_prints_one_line_per_set(tmp_path: Path,
+                                                      capsys: pytest.CaptureFixture[str]) -> None:
+    _write_pair(tmp_path / 'boxes.mat', mismatches=20)
+    _write_pair(tmp_path / 'boxes2.mat', mismatches=40)
+    assert main(['adelaide', str(tmp_path), '--items', '--jobs', '1']) == 0
+    out = capsys.readouterr().out
+    lines = [line for line in out.splitlines() if line.startswith('adelaidermf_f ')]
+    assert len(lines) == 3  # two items and the summary line
+    assert lines[-1].split()[1] == '2'
+
+
+def test_pearl_bench_hopkins_with_outliers_reports_recall(
+        hopkins_like, capsys: pytest.CaptureFixture[str]) -> None:
+    path = hopkins_like('1R2RC_x', sizes=(50, 40), frames=8)
+    assert main(['hopkins155', str(path.parents[1]), '--outliers', '0.2']) == 0
+    line = next(x for x in capsys.readouterr().out.splitlines()
+                if x.startswith('hopkins155_outliers'))
+    assert line.split()[1] == '1'
+    assert float(line.split()[5]) >= 0.0  # an outlier recall is reported, not '-'
+
+
+@pytest.mark.parametrize('argv, message', [
+    (['suite', '--data', '/nonexistent/data'], 'data folder not found'),
+    (['hopkins155', '.', '--outliers', '1.5'], '--outliers must be in [0, 1)'),
+    (['synthetic', '--scenes', '-1'], '--scenes must be >= 0'),
+    (['adelaide', '/nonexistent/pairs'], 'AdelaideRMF folder not found'),
+    (['kt3dmoseg', '/nonexistent/clips', '--frames', 'two'], 'KT3DMoSeg folder not found'),
+])
+def test_bad_bench_arguments_are_one_line_errors(argv: list[str], message: str,
+                                                 capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(argv) == 1
+    err = capsys.readouterr().err.strip()
+    assert err.startswith('error:') and '\n' not in err and message in err
+
+
+def test_a_task_error_names_its_item(tmp_path: Path) -> None:
+    (tmp_path / 'broken.mat').write_bytes(b'junk')
+    with pytest.raises(InputError, match='broken.mat'):
+        run_task(Task('adelaide', str(tmp_path / 'broken.mat'), 'two', PearlConfig(),
+                      OnlineConfig()))
