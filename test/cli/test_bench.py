@@ -18,12 +18,12 @@ from pearl_ros.cli.bench import (
 )
 from pearl_ros.core.errors import InputError
 
-HOPKINS = Path(__file__).resolve().parents[2].parent / 'shared' / 'data' / 'hopkins155'
-# The data is part of the workplace (../shared/data): a missing folder fails, never skips.
-needs_hopkins = pytest.mark.usefixtures('hopkins_root')
-
-# Two of the smallest sequences, one traffic and one articulated, both with 2 motions.
-SMALL = ('two_cranes_g23', 'cars2_06_g12')
+# Two small Hopkins-format sequences written from synthetic scenes (conftest ``hopkins_like``),
+# one articulated and one traffic by their names, both with 2 well-separated motions:
+# name -> (points per motion, frames, scene seed). The second one, with few proposals and one
+# round (SEED_SENSITIVE below), ends in another labelling on some seeds.
+SMALL = ('two_cranes_synthetic', 'cars_synthetic')
+SCENES = {SMALL[0]: ((24, 15), 12, 1), SMALL[1]: ((30, 18), 8, 1)}
 COLUMNS = [
     'name',
     'category',
@@ -183,61 +183,81 @@ def without_seconds(rows: list[dict[str, str]]) -> list[dict[str, str]]:
     return [{k: v for k, v in r.items() if k != 'seconds'} for r in rows]
 
 
-@needs_hopkins
-def test_bench_runs_named_sequences_and_writes_one_csv_row_each(tmp_path, capsys):
+@pytest.fixture
+def root(hopkins_like) -> Path:
+    """A Hopkins155-format folder holding the SCENES sequences."""
+    for name, (sizes, frames, seed) in SCENES.items():
+        truth = hopkins_like(name, sizes, frames, seed)
+    return truth.parents[1]
+
+
+def test_bench_runs_named_sequences_and_writes_one_csv_row_each(root, tmp_path, capsys):
     out = tmp_path / 'bench.csv'
     # Given out of sorted order: rows must follow the order asked for.
-    code = main(['hopkins155', str(HOPKINS), '--only', SMALL[0], SMALL[1], '--csv', str(out)])
+    code = main(['hopkins155', str(root), '--only', SMALL[0], SMALL[1], '--csv', str(out)])
     assert code == 0
     rows = read_csv(out)
     assert [r['name'] for r in rows] == list(SMALL)
     assert [r['category'] for r in rows] == ['articulated', 'traffic']
     assert [r['motions_true'] for r in rows] == ['2', '2']
+    assert [(r['points'], r['frames']) for r in rows] == [
+        (str(sum(sizes)), str(frames)) for sizes, frames, _ in SCENES.values()
+    ]
+    # Two rigid bodies far apart with 0.3 px of noise: the defaults segment them exactly.
+    assert [(r['motions_found'], float(r['error_pct'])) for r in rows] == [('2', 0.0)] * 2
+    for r in rows:
+        assert int(r['iterations']) >= 1 and float(r['seconds']) > 0.0
+    text = capsys.readouterr().out
+    assert table_rows(text, 'Misclassification (%)')['all'][6:] == ['2', '0.00', '0.00']
+
+
+def test_bench_reads_the_real_hopkins155_files(hopkins_root, tmp_path):
+    # Two of the smallest sequences of the dataset, one traffic and one articulated.
+    out = tmp_path / 'bench.csv'
+    only = ['--only', 'two_cranes_g23', 'cars2_06_g12']
+    assert main(['hopkins155', str(hopkins_root), *only, '--csv', str(out)]) == 0
+    rows = read_csv(out)
+    assert [(r['category'], r['motions_true']) for r in rows] == [('articulated', '2'),
+                                                                  ('traffic', '2')]
     # two_cranes_g23: 39 points over 30 frames; cars2_06_g12: 48 points over 15 frames.
     assert [(r['points'], r['frames']) for r in rows] == [('39', '30'), ('48', '15')]
     for r in rows:
-        assert 0.0 <= float(r['error_pct']) <= 100.0
-        assert int(r['motions_found']) >= 0 and int(r['iterations']) >= 1
-        assert float(r['seconds']) > 0.0
-    text = capsys.readouterr().out
-    assert table_rows(text, 'Misclassification (%)')['all'][6] == '2'
+        assert 0.0 <= float(r['error_pct']) <= 100.0 and int(r['motions_found']) >= 0
 
 
 # Few proposals and one round make the outcome depend on the seed, so that a wrong seed shows.
 SEED_SENSITIVE = ['--set', 'num_proposals=4', '--set', 'rounds=1', '--set', 'max_iterations=1']
 
 
-def bench_csv(tmp_path: Path, name: str, *args: str) -> list[dict[str, str]]:
+def bench_csv(root: Path, tmp_path: Path, name: str, *args: str) -> list[dict[str, str]]:
     out = tmp_path / f'{name}.csv'
-    assert main(['hopkins155', str(HOPKINS), *SEED_SENSITIVE, *args, '--csv', str(out)]) == 0
+    assert main(['hopkins155', str(root), *SEED_SENSITIVE, *args, '--csv', str(out)]) == 0
     return without_seconds(read_csv(out))
 
 
-@needs_hopkins
-def test_bench_is_deterministic_and_a_sequence_seed_ignores_the_others(tmp_path):
-    both = bench_csv(tmp_path, 'both', '--only', *SMALL)
-    assert bench_csv(tmp_path, 'again', '--only', *SMALL) == both
-    assert bench_csv(tmp_path, 'alone', '--only', SMALL[1]) == both[1:]
-    assert bench_csv(tmp_path, 'parallel', '--only', *SMALL, '--jobs', '2') == both
+def test_bench_is_deterministic_and_a_sequence_seed_ignores_the_others(root, tmp_path):
+    both = bench_csv(root, tmp_path, 'both', '--only', *SMALL)
+    assert bench_csv(root, tmp_path, 'again', '--only', *SMALL) == both
+    assert bench_csv(root, tmp_path, 'alone', '--only', SMALL[1]) == both[1:]
+    assert bench_csv(root, tmp_path, 'parallel', '--only', *SMALL, '--jobs', '2') == both
     # The comparisons above have teeth only if another seed changes the outcome.
-    others = [bench_csv(tmp_path, f's{s}', '--only', *SMALL, '--seed', str(s)) for s in (1, 2, 3)]
+    others = [bench_csv(root, tmp_path, f's{s}', '--only', *SMALL, '--seed', str(s))
+              for s in (1, 2, 3)]
     assert any(rows != both for rows in others)
 
 
-@needs_hopkins
-def test_bench_two_frame_mode_gives_fit_the_first_and_last_frame(tmp_path):
+def test_bench_two_frame_mode_gives_fit_the_first_and_last_frame(root, tmp_path):
     out = tmp_path / 'two.csv'
     args = ['--frames', 'two', '--only', SMALL[1], '--csv', str(out)]
-    assert main(['hopkins155', str(HOPKINS), *args]) == 0
+    assert main(['hopkins155', str(root), *args]) == 0
     assert read_csv(out)[0]['frames'] == '2'
 
 
-@needs_hopkins
-def test_bench_set_reaches_the_fit(tmp_path):
+def test_bench_set_reaches_the_fit(root, tmp_path):
     # A label cost no model can pay for leaves every point an outlier: all of them wrong.
     out = tmp_path / 'costly.csv'
     args = ['--only', SMALL[1], '--set', 'label_cost=1e9', '--csv', str(out)]
-    assert main(['hopkins155', str(HOPKINS), *args]) == 0
+    assert main(['hopkins155', str(root), *args]) == 0
     (result,) = read_csv(out)
     assert result['motions_found'] == '0'
     assert float(result['error_pct']) == 100.0
@@ -250,15 +270,13 @@ def assert_one_line_error(capsys, expected: str) -> None:
     assert 'Traceback' not in err
 
 
-@needs_hopkins
-def test_unknown_set_name_is_an_error(capsys):
-    assert main(['hopkins155', str(HOPKINS), '--only', SMALL[0], '--set', 'nope=3']) == 1
+def test_unknown_set_name_is_an_error(root, capsys):
+    assert main(['hopkins155', str(root), '--only', SMALL[0], '--set', 'nope=3']) == 1
     assert_one_line_error(capsys, "unknown parameter 'nope'")
 
 
-@needs_hopkins
-def test_out_of_range_set_value_is_an_error(capsys):
-    assert main(['hopkins155', str(HOPKINS), '--only', SMALL[0], '--set', 'label_cost=-1']) == 1
+def test_out_of_range_set_value_is_an_error(root, capsys):
+    assert main(['hopkins155', str(root), '--only', SMALL[0], '--set', 'label_cost=-1']) == 1
     assert_one_line_error(capsys, 'label_cost must be >= 0')
 
 
@@ -267,9 +285,8 @@ def test_missing_path_is_an_error(tmp_path, capsys):
     assert_one_line_error(capsys, 'no-such-folder')
 
 
-@needs_hopkins
-def test_unknown_sequence_is_an_error(capsys):
-    assert main(['hopkins155', str(HOPKINS), '--only', 'no_such_sequence']) == 1
+def test_unknown_sequence_is_an_error(root, capsys):
+    assert main(['hopkins155', str(root), '--only', 'no_such_sequence']) == 1
     assert_one_line_error(capsys, 'no_such_sequence')
 
 
@@ -296,16 +313,20 @@ def test_format_oracle_tells_search_failures_from_energy_failures():
     assert 'than to their own: 1.00%' in text
 
 
-@needs_hopkins
-def test_oracle_fills_the_truth_columns(hopkins_root, tmp_path, capsys):
+def test_oracle_fills_the_truth_columns(root, tmp_path, capsys):
     out = tmp_path / 'rows.csv'
-    assert main(['hopkins155', str(hopkins_root), '--oracle', '--csv', str(out),
+    assert main(['hopkins155', str(root), '--oracle', '--csv', str(out),
                  '--only', SMALL[0]]) == 0
     assert 'Oracle:' in capsys.readouterr().out
-    with open(out, newline='', encoding='utf-8') as handle:
-        row_ = next(csv.DictReader(handle))
-    assert math.isfinite(float(row_['truth_energy'])) and float(row_['truth_energy']) > 0
-    assert 0.0 <= float(row_['crossover_pct']) <= 100.0
+    (found,) = read_csv(out)
+    assert float(found['error_pct']) == 0.0
+    # The fit found the true segmentation, whose energy the oracle measures on its own.
+    assert float(found['truth_energy']) == pytest.approx(float(found['energy']), rel=1e-9)
+    # Two bodies far apart, 0.3 px of noise: every point is closest to its own motion's model.
+    assert float(found['crossover_pct']) == 0.0
+    assert main(['hopkins155', str(root), '--csv', str(out), '--only', SMALL[0]]) == 0
+    (plain,) = read_csv(out)
+    assert math.isnan(float(plain['truth_energy'])) and math.isnan(float(plain['crossover_pct']))
 
 
 def test_latency_bench_prints_ordered_percentiles_and_errors_in_range(capsys):
