@@ -120,6 +120,9 @@ class SolverSettings:
     sigma_floor: float = spec(
         0.5, 'least noise level a model may claim, in units of the noise scale', low=1e-3,
         high=1.0)
+    sigma_ceiling: float = spec(
+        0.0, 'most noise level a model may claim, in units of the noise scale; 0 = none',
+        low=0.0, high=1e6)
     proposal_levels: tuple[float, ...] = spec(
         (1.0, 2.0, 4.0), 'noise levels a fresh hypothesis is offered at, in units of the noise '
         'scale (each >= sigma_floor; comma-separated on the command line)', low=1e-3, high=1e3)
@@ -193,6 +196,9 @@ class SolverSettings:
         if min(self.proposal_levels) < self.sigma_floor:
             raise InputError(f'proposal_levels must be >= sigma_floor ({self.sigma_floor}), '
                              f'got {self.proposal_levels!r}')
+        if self.sigma_ceiling and self.sigma_ceiling < max(self.proposal_levels):
+            raise InputError(f'sigma_ceiling must be 0 or >= every proposal level '
+                             f'({max(self.proposal_levels)}), got {self.sigma_ceiling!r}')
         if self.split_share_min > self.split_share_max:
             raise InputError(f'split_share_min must be <= split_share_max '
                              f'({self.split_share_max}), got {self.split_share_min!r}')

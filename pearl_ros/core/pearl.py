@@ -16,6 +16,7 @@ as :data:`~pearl_ros.core.labels.OUTLIER` (-1) and models as 0..K-1.
 
 from __future__ import annotations
 
+import math
 import time
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -85,7 +86,8 @@ def data_costs(residuals: np.ndarray, sigmas: np.ndarray, dof: float, floor: flo
     return costs
 
 
-def noise_level(residuals: np.ndarray, dof: float, floor: float, min_samples: int) -> float | None:
+def noise_level(residuals: np.ndarray, dof: float, floor: float, min_samples: int,
+                ceiling: float = math.inf) -> float | None:
     """Noise level sigma of a model fitted to its members' ``residuals``, at least ``floor``.
 
     The fit itself absorbs about ``min_samples`` points' worth of residual, so the sum of squares
@@ -95,7 +97,7 @@ def noise_level(residuals: np.ndarray, dof: float, floor: float, min_samples: in
     spare = residuals.size - min_samples
     if spare <= 0:
         return None
-    return float(max(np.sqrt(np.sum(np.square(residuals)) / (dof * spare)), floor))
+    return float(min(max(np.sqrt(np.sum(np.square(residuals)) / (dof * spare)), floor), ceiling))
 
 
 def sweep(problem: Problem, labels: np.ndarray, settings: SolverSettings | None = None
@@ -171,6 +173,7 @@ class _Setting:
     neighbours: np.ndarray  # (N, k) image neighbours, for local samples
     scale: float  # px, noise level of a fresh proposal (estimated or given)
     floor: float  # px, least noise level a model may claim
+    ceiling: float  # px, most noise level a model may claim (inf: none)
     dof: float  # E[r^2] / sigma^2 of the model's residuals
     outlier_cost: float
     label_cost: float
@@ -452,7 +455,7 @@ def _segment_models(setting: _Setting, labels: np.ndarray
         if new is None:
             continue
         row = model.residuals(data, new[None])[0]
-        sigma = noise_level(row[members], setting.dof, setting.floor, m)
+        sigma = noise_level(row[members], setting.dof, setting.floor, m, setting.ceiling)
         if sigma is None:
             continue
         params.append(new)
@@ -506,6 +509,7 @@ def _setting(tracks: np.ndarray, config: PearlConfig, rng: np.random.Generator,
     scale = config.noise or _estimate_scale(model, data, neighbours, config, rng)
     dof = model.residual_dof(data)
     floor = solver.sigma_floor * scale
+    ceiling = solver.sigma_ceiling * scale if solver.sigma_ceiling else math.inf
     # A point is an outlier when its residual to a model at the fresh noise level exceeds
     # outlier_threshold of those levels.
     outlier_cost = float(data_costs(np.array([[config.outlier_threshold * scale]]),
@@ -515,7 +519,7 @@ def _setting(tracks: np.ndarray, config: PearlConfig, rng: np.random.Generator,
         model=model, solver=solver, data=data, edges=edges,
         weights=edge_weights(graph.misses, scale, config.smoothness, config.separation,
                              config.contrast, config.unit_quantile, stretch),
-        neighbours=neighbours, scale=scale, floor=floor, dof=dof,
+        neighbours=neighbours, scale=scale, floor=floor, ceiling=ceiling, dof=dof,
         outlier_cost=outlier_cost,
         label_cost=config.label_cost * model.label_cost_weight(data))
 
@@ -578,7 +582,8 @@ def _refit_one(setting: _Setting, members: np.ndarray, start: np.ndarray) -> _Re
     if new is None:
         return None
     residuals = model.residuals(setting.data, new[None])
-    sigma = noise_level(residuals[0, members], setting.dof, setting.floor, model.min_samples)
+    sigma = noise_level(residuals[0, members], setting.dof, setting.floor, model.min_samples,
+                        setting.ceiling)
     if sigma is None:
         return None
     row = data_costs(residuals, np.array([sigma]), setting.dof, setting.floor)[0]

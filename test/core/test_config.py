@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+from pathlib import Path
 
 import pytest
 
@@ -53,6 +54,7 @@ def test_a_solver_setting_below_its_range_is_refused_naming_it(item):
     ('proposal_levels', (1.0, True), 'proposal_levels must be a non-empty tuple'),
     ('proposal_levels', (0.25, 1.0), r'proposal_levels must be >= sigma_floor \(0.5\)'),
     ('split_share_min', 0.95, r'split_share_min must be <= split_share_max \(0.9\)'),
+    ('sigma_ceiling', 2.0, r'sigma_ceiling must be 0 or >= every proposal level \(4.0\)'),
 ])
 def test_bad_solver_settings_are_refused_naming_the_field(name, value, message):
     with pytest.raises(InputError, match=message):
@@ -68,3 +70,11 @@ def test_equal_settings_make_equal_configs():
     assert PearlConfig(solver=SolverSettings(patch_size=9)) == PearlConfig(
         solver=SolverSettings(patch_size=9))
     assert PearlConfig(solver=SolverSettings(patch_size=9)) != PearlConfig()
+
+
+def test_the_parameter_reference_lists_every_solver_setting_with_its_default():
+    reference = (Path(__file__).resolve().parents[2] / 'docs' / 'parameters.md').read_text()
+    for item in solver_specs():
+        default = (','.join(f'{v:g}' for v in item.default) if isinstance(item.default, tuple)
+                   else item.default)
+        assert f'| `{item.name}` | `{default}` |' in reference, item.name

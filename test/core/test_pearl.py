@@ -283,3 +283,16 @@ def test_long_edge_growth_loosens_the_long_edges_within_one_body(gap_scene):
     assert np.array_equal(grown.weights[~across], plain.weights[~across])
     # A larger unit reads the same miss as more alike: a higher weight on every such edge.
     assert np.all(grown.weights[across] > plain.weights[across])
+
+
+def test_a_sigma_ceiling_bounds_every_model_noise_level(affine_scene) -> None:
+    from pearl_ros.core.config import SolverSettings
+    from pearl_ros.datasets.outliers import add_outlier_tracks
+
+    tracks, labels = affine_scene(sizes=(80, 60), frames=10, noise=0.3, seed=0)
+    tracks, labels = add_outlier_tracks(tracks, labels, 0.2, rng=1, step=3.0)
+    free = fit(tracks, PearlConfig(), rng=0)
+    assert free.sigmas.max() > 4.0 * free.scale  # outliers widen some model without a ceiling
+    capped = fit(tracks, PearlConfig(solver=SolverSettings(sigma_ceiling=4.0)), rng=0)
+    assert capped.scale == free.scale
+    assert capped.sigmas.max() <= 4.0 * capped.scale * (1 + 1e-12)
