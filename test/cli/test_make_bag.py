@@ -1,4 +1,8 @@
-"""pearl_make_bag on real Hopkins155 files, checked against the .mat contents read by scipy."""
+"""pearl_make_bag on Hopkins-format files, checked against the .mat contents read by scipy.
+
+The real Hopkins155 files (``hopkins_root``, data tests) for what only they hold; a file written
+from a synthetic scene (``hopkins_like``) where any valid file will do.
+"""
 
 from __future__ import annotations
 
@@ -12,24 +16,22 @@ import scipy.io
 
 from pearl_ros.bagio import read_feature_frames, read_ground_truth, topics
 from pearl_ros.cli.make_bag import EPOCH_NS, main
+
 from bag_oracles import as_float32, raw_messages
 
-HOPKINS = Path(__file__).resolve().parents[2].parent / 'shared' / 'data' / 'hopkins155'
+
+def truth_file(root: Path, name: str) -> Path:
+    return root / name / f'{name}_truth.mat'
 
 
-def truth_file(name: str) -> Path:
-    return HOPKINS / name / f'{name}_truth.mat'
-
-
-@pytest.mark.data
 def test_pointcloud_bag_matches_the_mat_file(
-    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+    hopkins_root: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    mat = scipy.io.loadmat(str(truth_file('1R2RCR_g12')))
+    mat = scipy.io.loadmat(str(truth_file(hopkins_root, '1R2RCR_g12')))
     y, x, s = mat['y'], mat['x'], mat['s'].ravel()
     num_points, num_frames = y.shape[1], y.shape[2]
     out = tmp_path / 'checker'
-    assert main([str(truth_file('1R2RCR_g12')), str(out)]) == 0
+    assert main([str(truth_file(hopkins_root, '1R2RCR_g12')), str(out)]) == 0
     assert 'wrote' in capsys.readouterr().out
     assert topics(out) == {
         '/feature_tracker/feature': 'sensor_msgs/msg/PointCloud',
@@ -55,13 +57,12 @@ def test_pointcloud_bag_matches_the_mat_file(
     np.testing.assert_array_equal(got, s - s.min())
 
 
-@pytest.mark.data
-def test_pointcloud2_sqlite3_at_another_rate(tmp_path: Path) -> None:
-    mat = scipy.io.loadmat(str(truth_file('cars2')))
+def test_pointcloud2_sqlite3_at_another_rate(hopkins_root: Path, tmp_path: Path) -> None:
+    mat = scipy.io.loadmat(str(truth_file(hopkins_root, 'cars2')))
     y, x = mat['y'], mat['x']
     out = tmp_path / 'cars'
     args = [
-        str(truth_file('cars2')),
+        str(truth_file(hopkins_root, 'cars2')),
         str(out),
         '--format',
         'pointcloud2',
@@ -86,15 +87,14 @@ def test_pointcloud2_sqlite3_at_another_rate(tmp_path: Path) -> None:
     )
 
 
-@pytest.mark.data
-def test_normalised_points_follow_x_where_k_disagrees(tmp_path: Path) -> None:
+def test_normalised_points_follow_x_where_k_disagrees(hopkins_root: Path, tmp_path: Path) -> None:
     # three-cars carries a K that does not produce its x field: x is the authority.
-    mat = scipy.io.loadmat(str(truth_file('three-cars')))
+    mat = scipy.io.loadmat(str(truth_file(hopkins_root, 'three-cars')))
     y, x, k = mat['y'].astype(float), mat['x'], mat['K'].astype(float)
     from_k = np.linalg.solve(k, y[:, :, 0])
     assert np.abs(from_k[:2] / from_k[2] - x[:2, :, 0] / x[2, :, 0]).max() > 0.05
     out = tmp_path / 'three'
-    assert main([str(truth_file('three-cars')), str(out)]) == 0
+    assert main([str(truth_file(hopkins_root, 'three-cars')), str(out)]) == 0
     msg = raw_messages(out, '/feature_tracker/feature')[0]
     xy = np.array([(p.x, p.y) for p in msg.points])
     np.testing.assert_allclose(xy, (x[:2, :, 0] / x[2, :, 0]).T, rtol=0, atol=1e-6)
@@ -111,10 +111,11 @@ def test_missing_mat_file_is_a_one_line_error(
     assert not (tmp_path / 'out').exists()
 
 
-@pytest.mark.data
-def test_existing_output_needs_force(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+def test_existing_output_needs_force(
+    hopkins_like, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
     out = tmp_path / 'bag'
-    mat = str(truth_file('1R2RCR_g12'))
+    mat = str(hopkins_like('scene'))
     assert main([mat, str(out), '--rate', '10']) == 0
     before = {p.name: p.read_bytes() for p in out.iterdir()}
     capsys.readouterr()
@@ -126,37 +127,43 @@ def test_existing_output_needs_force(tmp_path: Path, capsys: pytest.CaptureFixtu
     frames = list(read_feature_frames(out))
     assert frames[0].stamp_ns == EPOCH_NS
     assert frames[1].stamp_ns - frames[0].stamp_ns == 33_333_333
-    assert sorted(p.name for p in tmp_path.iterdir()) == ['bag']  # no staging left
+    assert sorted(p.name for p in tmp_path.iterdir()) == ['bag', 'hopkins155']  # no staging
 
 
-@pytest.mark.data
 def test_force_never_deletes_something_that_is_not_a_bag(
-    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+    hopkins_like, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     precious = tmp_path / 'notes'
     precious.mkdir()
     (precious / 'thesis.tex').write_text('keep me')
-    assert main([str(truth_file('1R2RCR_g12')), str(precious), '--force']) == 1
+    assert main([str(hopkins_like('scene')), str(precious), '--force']) == 1
     assert 'not a bag' in capsys.readouterr().err
     assert (precious / 'thesis.tex').read_text() == 'keep me'
 
 
 @pytest.mark.parametrize(
-    'args',
+    ('args', 'named'),
     [
-        ['--rate', '0'],
-        ['--rate', 'nan'],
-        ['--format', 'image'],
-        ['--storage', 'rosbag1'],
-        ['--no-such-flag'],
+        (['--rate', '0'], 'rate'),
+        (['--rate', 'nan'], 'rate'),
+        (['--format', 'image'], "'image'"),
+        (['--storage', 'rosbag1'], "'rosbag1'"),
+        (['--no-such-flag'], '--no-such-flag'),
     ],
 )
 def test_bad_command_lines_return_1(
-    tmp_path: Path, capsys: pytest.CaptureFixture[str], args: list[str]
+    hopkins_like, tmp_path: Path, capsys: pytest.CaptureFixture[str], args: list[str], named: str
 ) -> None:
-    assert main([str(truth_file('1R2RCR_g12')), str(tmp_path / 'out'), *args]) == 1
+    mat = str(hopkins_like('scene'))
+    # The file and output are good (the same command line without the bad option succeeds):
+    # the option alone is what is refused.
+    assert main([mat, str(tmp_path / 'good')]) == 0
+    capsys.readouterr()
+    assert main([mat, str(tmp_path / 'out'), *args]) == 1
     err = capsys.readouterr().err
-    assert 'error: ' in err and 'Traceback' not in err
+    error_lines = [line for line in err.splitlines() if line.startswith('error: ')]
+    assert len(error_lines) == 1 and named in error_lines[0], err
+    assert 'Traceback' not in err
     assert not (tmp_path / 'out').exists()
 
 
