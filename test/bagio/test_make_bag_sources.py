@@ -14,8 +14,13 @@ from pearl_ros.datasets.synthetic import BodySpec, synthetic_stream
 
 from bag_oracles import as_float32, raw_messages
 
-HOPKINS = Path(__file__).resolve().parents[2].parent / 'shared' / 'data' / 'hopkins155'
-G12 = HOPKINS / '1R2RCR_g12' / '1R2RCR_g12_truth.mat'
+FRAMES = 12  # of the Hopkins-format file the .mat tests use
+
+
+@pytest.fixture
+def mat_file(hopkins_like) -> Path:
+    """A Hopkins-format file of two motions over FRAMES frames (a synthetic scene)."""
+    return hopkins_like('scene', sizes=(40, 30), frames=FRAMES)
 
 
 def one_error_line(capsys: pytest.CaptureFixture[str]) -> str:
@@ -25,27 +30,29 @@ def one_error_line(capsys: pytest.CaptureFixture[str]) -> str:
     return lines[0]
 
 
-@pytest.mark.data
-def test_frames_keeps_the_chosen_frames_with_their_stamps(tmp_path: Path) -> None:
-    y = scipy.io.loadmat(str(G12))['y']
+def test_frames_keeps_the_chosen_frames_with_their_stamps(mat_file: Path, tmp_path: Path) -> None:
+    y = scipy.io.loadmat(str(mat_file))['y']
     out = tmp_path / 'pair'
-    assert main([str(G12), str(out), '--frames', '1,-2', '--rate', '10']) == 0
+    assert main([str(mat_file), str(out), '--frames', '1,-2', '--rate', '10']) == 0
     frames = list(read_feature_frames(out))
-    last = y.shape[2] - 2
+    last = FRAMES - 2
     assert [f.stamp_ns for f in frames] == [EPOCH_NS + 100_000_000, EPOCH_NS + last * 100_000_000]
     for f, frame in zip((1, last), frames, strict=True):
         np.testing.assert_array_equal(frame.uv, as_float32((y[:2, :, f] / y[2, :, f]).T))
     assert len(read_ground_truth_frames(out)) == 2
 
 
-@pytest.mark.data
-@pytest.mark.parametrize('frames', ['0,0', '3,1', '0,99', 'a,b', '-99'])
+@pytest.mark.parametrize('frames', ['0,0', '3,1', f'0,{FRAMES}', 'a,b', f'-{FRAMES + 1}'])
 def test_bad_frame_lists_are_one_line_errors(
-    tmp_path: Path, capsys: pytest.CaptureFixture[str], frames: str
+    mat_file: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str], frames: str
 ) -> None:
-    assert main([str(G12), str(tmp_path / 'out'), f'--frames={frames}']) == 1
+    out = tmp_path / 'out'
+    assert main([str(mat_file), str(out), f'--frames={frames}']) == 1
     assert 'frame' in one_error_line(capsys)
-    assert not any(tmp_path.iterdir())
+    assert not out.exists() and not list(tmp_path.glob('.out.*'))  # no staging left
+    # The last frame and the first, from the end, are in range: the bounds are where they are.
+    assert main([str(mat_file), str(out), f'--frames=0,{FRAMES - 1}']) == 0
+    assert main([str(mat_file), str(tmp_path / 'end'), f'--frames=-{FRAMES}']) == 0
 
 
 def test_synthetic_source_writes_the_stream_with_per_frame_truth(tmp_path: Path) -> None:
@@ -87,32 +94,34 @@ def test_bad_synthetic_options_are_one_line_errors(
     assert not any(tmp_path.iterdir())
 
 
-@pytest.mark.data
-def test_a_dot_bag_output_is_a_ros1_bag_file_with_the_same_messages(tmp_path: Path) -> None:
-    assert main([str(G12), str(tmp_path / 'ros2')]) == 0
-    assert main([str(G12), str(tmp_path / 'ros1.bag')]) == 0
-    ros1 = tmp_path / 'ros1.bag'
+def test_a_dot_bag_output_is_a_ros1_bag_file_with_the_same_messages(
+    mat_file: Path, tmp_path: Path
+) -> None:
+    folder = tmp_path / 'out'  # apart from the .mat file's folder
+    folder.mkdir()
+    assert main([str(mat_file), str(folder / 'ros2')]) == 0
+    assert main([str(mat_file), str(folder / 'ros1.bag')]) == 0
+    ros1 = folder / 'ros1.bag'
     assert ros1.is_file() and ros1.read_bytes().startswith(b'#ROSBAG V2.0\n')
-    assert topics(ros1) == topics(tmp_path / 'ros2')
-    for a, b in zip(read_feature_frames(ros1), read_feature_frames(tmp_path / 'ros2'),
+    assert topics(ros1) == topics(folder / 'ros2')
+    for a, b in zip(read_feature_frames(ros1), read_feature_frames(folder / 'ros2'),
                     strict=True):
         assert a.stamp_ns == b.stamp_ns
         np.testing.assert_array_equal(a.ids, b.ids)
         np.testing.assert_array_equal(a.uv, b.uv)
     header = raw_messages(ros1, '/feature_tracker/feature')[0].header
     assert header.seq == 0 and header.frame_id == 'camera'  # a ROS 1 Header
-    assert sorted(p.name for p in tmp_path.iterdir()) == ['ros1.bag', 'ros2']  # no staging
+    assert sorted(p.name for p in folder.iterdir()) == ['ros1.bag', 'ros2']  # no staging
 
 
-@pytest.mark.data
 def test_a_ros1_bag_file_is_replaced_only_with_force(
-    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+    mat_file: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     out = tmp_path / 'x.bag'
-    assert main([str(G12), str(out), '--frames', '0,1']) == 0
+    assert main([str(mat_file), str(out), '--frames', '0,1']) == 0
     before = out.read_bytes()
-    assert main([str(G12), str(out)]) == 1
+    assert main([str(mat_file), str(out)]) == 1
     assert '--force' in one_error_line(capsys)
     assert out.read_bytes() == before
-    assert main([str(G12), str(out), '--force']) == 0
-    assert len(list(read_feature_frames(out))) == 24
+    assert main([str(mat_file), str(out), '--force']) == 0
+    assert len(list(read_feature_frames(out))) == FRAMES
