@@ -80,7 +80,8 @@ def test_segment_bag_reports_the_segmentation_of_a_bundled_bag(capsys):
 
     # Expected values from the bag itself, stacked here with plain dicts and sets.
     frames = list(read_feature_frames(SMALL_BAG))
-    by_frame = [dict(zip(np.asarray(f.ids).tolist(), np.asarray(f.uv).tolist())) for f in frames]
+    by_frame = [dict(zip(np.asarray(f.ids).tolist(), np.asarray(f.uv).tolist(), strict=True))
+                for f in frames]
     common = sorted(set.intersection(*(set(d) for d in by_frame)))
     tracks = np.array([[d[i] for i in common] for d in by_frame], dtype=np.float64)
     truth_map = read_ground_truth(SMALL_BAG)
@@ -97,7 +98,7 @@ def test_segment_bag_reports_the_segmentation_of_a_bundled_bag(capsys):
     # The printed rate is that of the fit, scored point by point with the best matching.
     best = 0
     for perm in _matchings(result.labels, truth):
-        pairs = zip(result.labels.tolist(), truth.tolist())
+        pairs = zip(result.labels.tolist(), truth.tolist(), strict=True)
         best = max(best, sum(perm.get(p) == t or p == t == -1 for p, t in pairs))
     assert error and float(error[1]) == pytest.approx(100 * (1 - best / len(common)), abs=0.005)
     label_lines = [line for line in out.splitlines() if re.fullmatch(r'\s+[-0-9a-z]+', line)]
@@ -107,7 +108,7 @@ def test_segment_bag_reports_the_segmentation_of_a_bundled_bag(capsys):
     # exactly at the misclassified points.
     shown_truth, shown_found = symbols[: len(common)], symbols[len(common) :]
     assert sorted(shown_truth) == sorted(''.join(str(t) for t in truth))
-    wrong = sum(a != b for a, b in zip(shown_truth, shown_found))
+    wrong = sum(a != b for a, b in zip(shown_truth, shown_found, strict=True))
     assert wrong == len(common) - best
 
 
@@ -118,10 +119,10 @@ def _matchings(pred: np.ndarray, truth: np.ndarray):
     true_groups = sorted({int(t) for t in truth if t >= 0})
     if len(pred_groups) <= len(true_groups):
         for image in itertools.permutations(true_groups, len(pred_groups)):
-            yield dict(zip(pred_groups, image))
+            yield dict(zip(pred_groups, image, strict=True))
     else:
         for chosen in itertools.permutations(pred_groups, len(true_groups)):
-            yield dict(zip(chosen, true_groups))
+            yield dict(zip(chosen, true_groups, strict=True))
 
 
 def test_segment_bag_reports_every_bag_given(capsys):

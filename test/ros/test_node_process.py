@@ -152,7 +152,7 @@ def test_bad_arguments_stop_the_executable_with_a_one_line_error(
 def _copy_sources(target: Path) -> None:
     shutil.copytree(REPO, target, ignore=shutil.ignore_patterns(
         '.venv', '.git', 'bags', 'test', 'build', 'install', 'log', '*.egg-info',
-        '__pycache__', '.pytest_cache'))
+        '__pycache__', '.pytest_cache', '.mypy_cache', '.ruff_cache'))
 
 
 def test_colcon_build_installs_the_node_where_ros2_run_finds_it(
