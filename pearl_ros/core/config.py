@@ -178,6 +178,9 @@ class SolverSettings:
         low=1, high=1000000)
     scale_seeds: int = spec(60, 'image neighbourhoods fitted to estimate the noise scale',
                             low=1, high=1000000)
+    scale_trim: int = spec(
+        0, 'points of each noise-scale neighbourhood left out as outliers (least trimmed '
+        'squares); 0 = least squares over all', low=0, high=1000)
     # The online segmenter (online/segmenter.py).
     rescale_every: int = spec(15, 'frames between estimates of the noise scale when streaming',
                               low=1, high=1000000)

@@ -541,8 +541,8 @@ def noise_scale(tracks: np.ndarray, config: PearlConfig | None = None,
 
 def _estimate_scale(model: MotionModel, data: np.ndarray, neighbours: np.ndarray,
                     config: PearlConfig, rng: np.random.Generator) -> float:
-    return max(local_scale(model, data, neighbours, rng, config.solver.scale_seeds),
-               config.min_noise)
+    return max(local_scale(model, data, neighbours, rng, config.solver.scale_seeds,
+                           config.solver.scale_trim), config.min_noise)
 
 
 def _propose(search: _Search, config: PearlConfig, rng: np.random.Generator

@@ -74,3 +74,18 @@ def test_fit_groups_rejects_groups_smaller_than_a_minimal_sample(name, affine_sc
     data = model.data(tracks)
     with pytest.raises(InputError, match='groups'):
         model.fit_groups(data, np.zeros((3, model.min_samples - 1), dtype=int))
+
+
+def test_a_trimmed_scale_holds_where_outlier_tracks_inflate_least_squares(affine_scene) -> None:
+    from pearl_ros.core.config import PearlConfig, SolverSettings
+    from pearl_ros.core.pearl import noise_scale
+    from pearl_ros.datasets.outliers import add_outlier_tracks
+
+    tracks, labels = affine_scene(sizes=(80, 60), frames=10, noise=0.3, seed=1)
+    dirty, _ = add_outlier_tracks(tracks, labels, 0.2, rng=1, step=3.0)
+    trimmed = PearlConfig(solver=SolverSettings(scale_trim=2))
+    # The scenes' noise is 0.3 px per coordinate: least squares over neighbourhoods that hold
+    # outlier tracks reads far above it, the trimmed fit stays near it, with or without them.
+    assert noise_scale(dirty, rng=0) > 0.9
+    for data in (tracks, dirty):
+        assert 0.24 < noise_scale(data, trimmed, rng=0) < 0.36
