@@ -30,7 +30,7 @@ from rosbags.serde import SerdeError
 from rosbags.typesys import Stores, TypesysError, get_typestore
 
 from pearl_ros.bagio import decode, encode
-from pearl_ros.core.errors import BagError, InputError
+from pearl_ros.core.errors import BagError, InputError, one_line
 
 TYPESTORE = get_typestore(Stores.ROS2_KILTED)
 
@@ -271,15 +271,21 @@ def read_features(msg: Any, msgtype: str | None = None, layout: str = 'auto',
     """
     if msgtype is None:
         msgtype = POINTCLOUD if hasattr(msg, 'channels') else POINTCLOUD2
-    if msgtype == POINTCLOUD2:
-        ids, uv = decode.decode_pointcloud2(msg)
-    elif msgtype == POINTCLOUD:
-        ids, uv = decode.decode_pointcloud(msg, layout, camera_id)
+    ids, uv = _decode(msg, msgtype, layout, camera_id)
+    if msgtype == POINTCLOUD:
         encode.check_float32_ids(ids)
-    else:
-        raise InputError(f'{msgtype} is not a feature message type {FEATURE_TYPES}')
     encode.check_label_ids(ids)
     return ids, uv
+
+
+def _decode(msg: Any, msgtype: str, layout: str, camera_id: int
+            ) -> tuple[np.ndarray, np.ndarray]:
+    """Ids and pixels of a PointCloud or PointCloud2 message, by ``msgtype``."""
+    if msgtype == POINTCLOUD2:
+        return decode.decode_pointcloud2(msg)
+    if msgtype == POINTCLOUD:
+        return decode.decode_pointcloud(msg, layout, camera_id)
+    raise InputError(f'{msgtype} is not a feature message type {FEATURE_TYPES}')
 
 
 def decode_feature_message(
@@ -307,6 +313,15 @@ def topics(path: str | Path) -> dict[str, str]:
     """
     with _open(path) as reader:
         return _topic_types(reader)
+
+
+def topic_counts(path: str | Path) -> dict[str, tuple[str, int]]:
+    """Topic -> (message type as :func:`topics` gives it, message count) of the bag at ``path``."""
+    with _open(path) as reader:
+        counts: dict[str, int] = {}
+        for connection in reader.connections:
+            counts[connection.topic] = counts.get(connection.topic, 0) + int(connection.msgcount)
+        return {topic: (kind, counts[topic]) for topic, kind in _topic_types(reader).items()}
 
 
 def read_feature_frames(
@@ -357,19 +372,12 @@ def read_ground_truth(path: str | Path, topic: str = '/ground_truth/labels') -> 
         As :func:`read_feature_frames`, and when one id is given two different labels.
     """
     truth: dict[int, int] = {}
-    with _open(path) as reader:
-        connections = _connections(reader, path, topic, TRUTH_TYPES)
-        for index, (_, msg) in enumerate(_messages(reader, path, connections)):
-            try:
-                ids, labels = decode.decode_labels(msg)
-            except InputError as err:
-                raise BagError(f'{path}: message {index} on {topic}: {err}') from err
-            for feature, label in zip(ids.tolist(), labels.tolist(), strict=True):
-                if truth.setdefault(feature, label) != label:
-                    raise BagError(
-                        f'{path}: feature {feature} has labels {truth[feature]} and {label} '
-                        f'on {topic}'
-                    )
+    for _, ids, labels in read_ground_truth_frames(path, topic):
+        for feature, label in zip(ids.tolist(), labels.tolist(), strict=True):
+            if truth.setdefault(feature, label) != label:
+                raise BagError(
+                    f'{path}: feature {feature} has labels {truth[feature]} and {label} on {topic}'
+                )
     return truth
 
 
@@ -408,10 +416,7 @@ def _iter_frames(
         connections = _connections(reader, path, topic, FEATURE_TYPES)
         for index, (msgtype, msg) in enumerate(_messages(reader, path, connections)):
             try:
-                if msgtype == POINTCLOUD2:
-                    ids, uv = decode.decode_pointcloud2(msg)
-                else:
-                    ids, uv = decode.decode_pointcloud(msg, layout, camera_id)
+                ids, uv = _decode(msg, msgtype, layout, camera_id)
                 frame = FeatureFrame(decode.stamp_ns(msg.header), ids, uv)
             except InputError as err:
                 raise BagError(f'{path}: message {index} on {topic}: {err}') from err
@@ -479,9 +484,3 @@ def _messages(reader: AnyReader, path: str | Path, connections: list[Any]) -> It
         except _ROSBAGS_ERRORS as err:
             raise BagError(f'cannot read bag {path}: {one_line(err)}') from err
         yield connection.msgtype, msg
-
-
-def one_line(err: BaseException, limit: int = 300) -> str:
-    """``err`` as one line of at most ``limit`` characters (YAML errors span several)."""
-    text = ' '.join(str(err).split()) or type(err).__name__
-    return text if len(text) <= limit else text[: limit - 3] + '...'

@@ -16,6 +16,7 @@ for the node, a rosbags typestore's for the replay; decoding reads only what bot
 
 from __future__ import annotations
 
+from collections import Counter
 from dataclasses import dataclass
 from typing import Any
 
@@ -23,7 +24,7 @@ import numpy as np
 
 from pearl_ros.bagio import decode, encode
 from pearl_ros.bagio.reader import TYPESTORE, read_features
-from pearl_ros.core.errors import InputError
+from pearl_ros.core.errors import InputError, one_line
 from pearl_ros.online.segmenter import FrameResult, OnlineSegmenter
 from pearl_ros.pipeline.settings import Settings
 
@@ -69,14 +70,49 @@ class Skipped:
     malformed: bool
 
     @classmethod
-    def because(cls, reason: str, malformed: bool = True) -> Skipped:
-        reason = ' '.join(str(reason).split())
-        return cls(skip_kind(reason), reason, malformed)
+    def because(cls, reason: str | BaseException, malformed: bool = True) -> Skipped:
+        """The skip for ``reason`` (an error or its text), its kind told by its words."""
+        text = one_line(reason, None)
+        return cls(skip_kind(text), text, malformed)
 
     @property
     def line(self) -> str:
         """``'skipped (kind): reason'``: what every front end says, after its own context."""
         return f'skipped ({self.kind}): {self.reason}'
+
+
+class SkipWarnings:
+    """What a front end says about skipped messages: the first of each kind in full, then how
+    many there were of each kind.
+
+    Parameters
+    ----------
+    topic : str
+        The feature topic, named in each warning.
+    """
+
+    def __init__(self, topic: str) -> None:
+        self.topic = topic
+        self.kinds: Counter[str] = Counter()
+
+    def warn(self, index: int, skip: Skipped) -> str | None:
+        """Count ``skip``; its warning line, or None when one of its kind was already given.
+
+        ``index`` is the message's position on the topic (-1: not a feature message).
+        """
+        self.kinds[skip.kind] += 1
+        if self.kinds[skip.kind] > 1:
+            return None
+        where = f'message {index} on {self.topic} ' if index >= 0 else ''
+        return f'warning: {where}{skip.line}'
+
+    def summary(self) -> str | None:
+        """The counts by kind, when some skips were not warned about one by one."""
+        total = sum(self.kinds.values())
+        if total <= len(self.kinds):
+            return None
+        kinds = ', '.join(f'{kind} {count}' for kind, count in sorted(self.kinds.items()))
+        return f'warning: {total} messages skipped in all ({kinds})'
 
 
 @dataclass(frozen=True)
@@ -85,10 +121,8 @@ class Labelled:
 
     Attributes
     ----------
-    stamp_ns : int
-        Header stamp, int nanoseconds.
-    ids : (N,) int64
-    uv : (N, 2) float64, pixels
+    stamp_ns, ids, uv
+        The message's stamp and features, as in :class:`~pearl_ros.bagio.reader.FeatureFrame`.
     labels : (N,) int64
         Motion number per input feature in input order, -1 = outlier or undecided.
     segmented : (N,) bool
@@ -153,6 +187,22 @@ class MessagePipeline:
         """Empty the window: the next message starts afresh."""
         self._segmenter.reset()
 
+    def read(self, msg: Any) -> tuple[np.ndarray, np.ndarray] | Skipped:
+        """Step 1 alone: the ids ``(N,)`` int64 and pixels ``(N, 2)`` of a feature message, or
+        the :class:`Skipped` that :meth:`process` gives it when it cannot be read or is empty.
+
+        Leaves the window untouched: ``pearl_play`` checks a bag with it before playing, so
+        that it holds back, with the node's own words, what the node would skip.
+        """
+        node = self._settings.node
+        try:
+            ids, uv = read_features(msg, None, node.layout, node.camera_id)
+        except InputError as err:
+            return Skipped.because(err)
+        if ids.size == 0:
+            return Skipped.because('empty cloud: no features', malformed=False)
+        return ids, uv
+
     def process(self, msg: Any, header: Any = None) -> Labelled | Skipped:
         """Segment one feature message.
 
@@ -171,19 +221,17 @@ class MessagePipeline:
         to the last). A stamp earlier than the last empties the window first
         (``result.reset``), and the message is segmented.
         """
+        features = self.read(msg)
+        if isinstance(features, Skipped):
+            return features
+        ids, uv = features
         node = self._settings.node
-        try:
-            ids, uv = read_features(msg, None, node.layout, node.camera_id)
-        except InputError as err:
-            return Skipped.because(str(err))
-        if ids.size == 0:
-            return Skipped.because('empty cloud: no features', malformed=False)
         segmented = encode.subsample_mask(ids, node.max_features)
         stamp = decode.stamp_ns(msg.header)
         try:
             result = self._segmenter.process(stamp, ids[segmented], uv[segmented])
         except InputError as err:  # a stamp equal to the last: the window is unchanged
-            return Skipped.because(str(err), malformed=False)
+            return Skipped.because(err, malformed=False)
         labels = np.full(ids.size, encode.UNLABELLED, dtype=np.int64)
         labels[segmented] = result.labels
         background = node.background_motion if node.background_motion >= 0 else None

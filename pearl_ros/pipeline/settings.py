@@ -23,9 +23,8 @@ from pathlib import Path
 from typing import Any
 
 from pearl_ros.bagio import decode
-from pearl_ros.bagio.reader import one_line
 from pearl_ros.core.config import ParameterSpec, check_fields, parameter_specs, spec
-from pearl_ros.core.errors import InputError
+from pearl_ros.core.errors import InputError, one_line
 from pearl_ros.online import config as online_config
 
 NODE_NAME = 'pearl_node'

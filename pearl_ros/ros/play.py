@@ -20,7 +20,6 @@ import functools
 import operator
 import sys
 import time
-import typing
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -36,7 +35,8 @@ from sensor_msgs.msg import PointCloud2
 
 from pearl_ros import scoring
 from pearl_ros.bagio import decode, reader
-from pearl_ros.core.errors import BagError, InputError, PearlError
+from pearl_ros.core.errors import BagError, PearlError, UsageParser, one_line
+from pearl_ros.pipeline.messages import MessagePipeline, Skipped, SkipWarnings
 from pearl_ros.ros import convert
 
 FEATURE_TOPIC = '/feature_tracker/feature'
@@ -65,13 +65,13 @@ class BagFeatures:
         ``'PointCloud'`` or ``'PointCloud2'``: the node's ``msg_type`` parameter for them.
     messages : list
         rclpy messages, in recording order.
-    skipped : list of (int, str)
-        Position on the topic and reason of each message ``pearl_node`` would refuse.
+    skipped : list of (int, Skipped)
+        Position on the topic of each message ``pearl_node`` would skip, and why.
     """
 
     msg_type: str
     messages: list[Any]
-    skipped: list[tuple[int, str]] = field(default_factory=list)
+    skipped: list[tuple[int, Skipped]] = field(default_factory=list)
 
 
 def bag_msg_type(path: str | Path, topic: str = FEATURE_TOPIC) -> str:
@@ -98,7 +98,8 @@ def load_bag(path: str | Path, topic: str = FEATURE_TOPIC) -> BagFeatures:
     Each message is read with rosbags (as ``pearl_replay`` reads it), serialised to ROS 2 CDR
     and handed to rclpy's deserialiser: every field and channel comes through, and a ROS 1
     message (whose bytes are not CDR) loses only its header's ``seq``. Messages the node would
-    refuse (malformed, empty) are left out and listed in ``skipped``.
+    skip (:meth:`~pearl_ros.pipeline.messages.MessagePipeline.read`: malformed, empty) are left
+    out and listed in ``skipped``, with the node's reason.
 
     Raises
     ------
@@ -108,29 +109,36 @@ def load_bag(path: str | Path, topic: str = FEATURE_TOPIC) -> BagFeatures:
     """
     msg_type = bag_msg_type(path, topic)
     msg_class = convert.MSG_CLASSES[msg_type]
+    pipeline = MessagePipeline()  # pearl_node's defaults: layout auto, camera 0
     messages, skipped = [], []
     with reader.open_feature_stream(path, topic) as stream:
         for item in stream:
             if not isinstance(item, reader.FeatureMessage):
                 continue
-            try:
-                if item.msg is None:
-                    raise InputError(item.error or 'unreadable')
-                reader.decode_feature_message(item.msg, item.msgtype)  # what the node refuses
-            except InputError as err:
-                skipped.append((item.index, ' '.join(str(err).split())))
-                continue
-            try:
-                cdr = bytes(reader.TYPESTORE.serialize_cdr(item.msg, item.msgtype))
-            except Exception as err:  # rosbags' serialiser raises several kinds
-                reason = ' '.join(str(err).split())
-                skipped.append((item.index, f'cannot convert to ROS 2: {reason}'))
-                continue
-            messages.append(deserialize_message(cdr, msg_class))
+            played = _playable(item, pipeline, msg_class)
+            if isinstance(played, Skipped):
+                skipped.append((item.index, played))
+            else:
+                messages.append(played)
     if not messages:
-        first = f' (first: {skipped[0][1]})' if skipped else ''
+        first = f' (first: {skipped[0][1].reason})' if skipped else ''
         raise BagError(f'{path}: no message on {topic} can be played{first}')
     return BagFeatures(msg_type, messages, skipped)
+
+
+def _playable(item: reader.FeatureMessage, pipeline: MessagePipeline, msg_class: Any
+              ) -> Any:
+    """``item`` as an rclpy message, or the :class:`Skipped` pearl_node would give it."""
+    if item.msg is None:
+        return Skipped.because(item.error or 'unreadable')
+    features = pipeline.read(item.msg)
+    if isinstance(features, Skipped):
+        return features
+    try:
+        cdr = bytes(reader.TYPESTORE.serialize_cdr(item.msg, item.msgtype))
+    except Exception as err:  # rosbags' serialiser raises several kinds
+        return Skipped.because(f'cannot convert to ROS 2: {one_line(err)}')
+    return deserialize_message(cdr, msg_class)
 
 
 def bag_messages(path: str | Path, topic: str = FEATURE_TOPIC) -> list[Any]:
@@ -239,15 +247,8 @@ def frame_line(index: int, row: scoring.FrameScore, labels: np.ndarray, width: i
             f'error {error}  {scoring.label_string(labels, width)}')
 
 
-class _Parser(argparse.ArgumentParser):
-    """Usage errors raise InputError, so that main prints one ``error:`` line and returns 1."""
-
-    def error(self, message: str) -> typing.NoReturn:
-        raise InputError(message)
-
-
 def build_parser() -> argparse.ArgumentParser:
-    parser = _Parser(prog='pearl_play', description=(__doc__ or '').split('\n\n')[0])
+    parser = UsageParser(prog='pearl_play', description=(__doc__ or '').split('\n\n')[0])
     parser.add_argument('bag', help='ROS 2 bag folder, .mcap/.db3 file, or ROS 1 .bag file, '
                         'with feature messages')
     parser.add_argument('--msg-type', action='store_true',
@@ -283,9 +284,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     except PearlError as err:
         print(f'error: {err}', file=sys.stderr)
         return 1
-    for index, reason in bag.skipped:
-        print(f'warning: message {index} on {args.topic} not played (pearl_node would skip it '
-              f'too): {reason}', file=sys.stderr)
+    warnings = SkipWarnings(args.topic)  # not played: pearl_node would skip them
+    lines = [warnings.warn(index, skip) for index, skip in bag.skipped] + [warnings.summary()]
+    for line in filter(None, lines):
+        print(line, file=sys.stderr)
     rclpy.init(args=ros_args)
     player = None
     try:
@@ -350,7 +352,6 @@ def _not_found(player: Player, msg_type: str, args: argparse.Namespace) -> str:
                 f'{wanted}: start it with -p msg_type:={msg_type}')
     return (f'no pearl_node subscribed to {args.features} and publishing {args.labels} '
             f'within {args.timeout} s')
-
 
 
 if __name__ == '__main__':

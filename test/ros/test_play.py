@@ -8,9 +8,14 @@ import subprocess
 import sys
 from pathlib import Path
 
+import uuid
+
 import numpy as np
 import pytest
+from rosbags.rosbag2 import StoragePlugin, Writer
+from rosbags.typesys import Stores, get_typestore
 
+from pearl_ros.pipeline.replay import replay
 from pearl_ros.ros.play import load_bag, main
 
 from bag_oracles import raw_messages
@@ -18,6 +23,7 @@ from ros_harness import REPO, Ros
 
 BAGS = REPO / 'bags'
 FEATURES = '/feature_tracker/feature'
+TS = get_typestore(Stores.ROS2_KILTED)
 
 
 def _points(msg: object) -> np.ndarray:
@@ -93,3 +99,64 @@ def test_a_node_told_another_type_is_named_with_the_fix(ros: Ros) -> None:
     assert done.stderr == (
         f'error: pearl_node subscribes sensor_msgs/msg/PointCloud on {ros.ns}/features but the '
         'bag has sensor_msgs/msg/PointCloud2: start it with -p msg_type:=PointCloud2\n')
+
+
+def _bag_with_bad_messages(path: Path) -> None:
+    """Seven messages: 0 and 5 good, 1 and 3 with a NaN pixel, 2 with a repeated id, 4 empty,
+    6 not a PointCloud at all."""
+    cloud = 'sensor_msgs/msg/PointCloud'
+    msgs = raw_messages(BAGS / '1R2RCR_g12', FEATURES)[:6]
+
+    def set_channel(msg: object, name: str, index: int, value: float) -> None:
+        channel = next(c for c in msg.channels if c.name == name)
+        channel.values = np.array(channel.values, dtype=np.float32)
+        channel.values[index] = value
+
+    set_channel(msgs[1], 'u_of_point', 0, np.nan)
+    set_channel(msgs[3], 'u_of_point', 7, np.nan)
+    set_channel(msgs[2], 'id_of_point', 1, msgs[2].channels[0].values[0])
+    msgs[4].points = []
+    for channel in msgs[4].channels:
+        channel.values = np.zeros(0, dtype=np.float32)
+    with Writer(path, version=9, storage_plugin=StoragePlugin.MCAP) as writer:
+        connection = writer.add_connection(FEATURES, cloud, typestore=TS)
+        for k, msg in enumerate(msgs):
+            writer.write(connection, k + 1, bytes(TS.serialize_cdr(msg, cloud)))
+        writer.write(connection, 7, b'\x00\x01\x00\x00not a cloud')
+
+
+def test_a_bad_message_is_held_back_with_the_line_pearl_replay_gives_it(tmp_path: Path) -> None:
+    bag = tmp_path / 'bad'
+    _bag_with_bad_messages(bag)
+    replayed: list[tuple[int, str]] = []  # what pearl_replay says of each message it skips
+    replay(bag, tmp_path / 'out', warn=lambda index, skip: replayed.append((index, skip.line)))
+    played = load_bag(bag)
+    assert [index for index, _ in replayed] == [1, 2, 3, 4, 6]
+    assert [(index, skip.line) for index, skip in played.skipped] == replayed
+    good = raw_messages(BAGS / '1R2RCR_g12', FEATURES)
+    assert [(msg.header.stamp.sec, msg.header.stamp.nanosec) for msg in played.messages] == [
+        (good[k].header.stamp.sec, good[k].header.stamp.nanosec) for k in (0, 5)]
+
+
+def test_bad_messages_are_warned_once_per_kind_then_counted(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    bag = tmp_path / 'bad'
+    _bag_with_bad_messages(bag)
+    lines = dict(((index, skip.kind), skip.line) for index, skip in load_bag(bag).skipped)
+    ns = f'/play_{uuid.uuid4().hex[:8]}'  # no node listens there: the player gives up
+    argv = [str(bag), '--features', f'{ns}/features', '--labels', f'{ns}/labels', '--timeout',
+            '0.2']
+    assert main(argv) == 1
+    out, err = capsys.readouterr()
+    assert out == ''
+    assert err.splitlines() == [
+        f'warning: message 1 on {FEATURES} {lines[1, "non_finite"]}',
+        f'warning: message 2 on {FEATURES} {lines[2, "duplicate_ids"]}',
+        f'warning: message 4 on {FEATURES} {lines[4, "empty"]}',
+        f'warning: message 6 on {FEATURES} {lines[6, "deserialise"]}',
+        'warning: 5 messages skipped in all (deserialise 1, duplicate_ids 1, empty 1, '
+        'non_finite 2)',
+        f'error: no pearl_node subscribed to {ns}/features and publishing {ns}/labels within '
+        '0.2 s',
+    ]
