@@ -57,7 +57,7 @@ TS = get_typestore(Stores.ROS2_KILTED)
 DETERMINISTIC = ['--set', 'budget_ms=0']
 
 # Largest misclassification allowed on the final frame, measured with budget_ms=0 and the
-# default parameters of the online segmenter (session 4: the contrast-weighted smoothness).
+# default parameters of the online segmenter.
 # Each bound is that level plus a margin, with the reason it is not lower; tighten them as the
 # segmenter improves.
 ACCURACY_BOUNDS = {
@@ -67,9 +67,8 @@ ACCURACY_BOUNDS = {
     # Two of the three motions found (21.8%): the window of 10 frames does not yet separate
     # the third. Labelling everything one motion scores 31.7%, above the bound.
     '1R2RCR': 0.25,
-    # The car and the handheld camera's motions are nearly dependent (BENCHMARKS.md): 0.8%
-    # (3.1% before neighbours were weighted by how alike they move); one motion would score
-    # 12.0%.
+    # The car and the handheld camera's motions are nearly dependent (BENCHMARKS.md, "What
+    # limits accuracy now": merged motions): 0.8%; one motion would score 12.0%.
     'cars2': 0.03,
     # Two views, fundamental matrices: both motions found (0.0%).
     '1R2RCR_g12_pair': 0.02,

@@ -15,7 +15,8 @@ from pearl_ros.core.pearl import evaluate_segmentation, fit
 
 
 # Motions of 120+ points: with the default label cost, a motion of under ~100 points behind a
-# looser model straddling it cannot always pay its own label (see BENCHMARKS.md).
+# looser model straddling it cannot always pay its own label (the energy prefers the merge:
+# BENCHMARKS.md, "What limits accuracy now"; docs/experiments.md, "The label cost").
 @pytest.mark.parametrize('sizes,seed', [((200, 150), 2), ((200, 150, 120), 3),
                                         ((200, 150, 120), 4)])
 def test_fit_finds_the_number_of_motions_and_segments_them(affine_scene, sizes, seed):

@@ -23,10 +23,10 @@ from ros_harness import BAG, RELIABLE, Ros
 # directly must agree exactly. Every other parameter at its default.
 SETTINGS = {'budget_ms': 0.0}
 
-# The batch core misclassifies < 2% of this bag's points (BENCHMARKS.md, test_regression_bags);
-# the online segmenter, once its window holds enough frames, must do as well on the last
-# frame. 5% leaves room for 4 points of 153 to differ from the batch fit, not for a lost motion
-# (33%).
+# The batch core misclassifies < 2% of this bag's points (BENCHMARKS.md, "Bundled bags", and
+# test_regression_bags.py); the online segmenter, once its window holds enough frames, must do
+# as well on the last frame. 5% leaves room for 4 points of 153 to differ from the batch fit,
+# not for a lost motion (33%).
 FINAL_ERROR_BOUND = 0.05
 
 
