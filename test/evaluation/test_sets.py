@@ -9,7 +9,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 import scipy.io
-from conftest import make_affine_scene
 
 from pearl_ros.cli.bench import main
 from pearl_ros.core.config import PearlConfig
@@ -49,9 +48,10 @@ def test_summaries_average_per_set_and_count_right_motion_numbers() -> None:
     assert (b.dataset, b.items, b.mean_pct) == ('b', 1, 0.0)
 
 
-def _write_clip(path: Path, frames: int = 8) -> np.ndarray:
-    """A KT3DMoSeg-format clip of two affine bodies, some tracks missing at either end."""
-    tracks, labels = make_affine_scene((60, 50), frames, noise=0.3, seed=2)
+def _write_clip(path: Path, affine_scene, frames: int = 8) -> np.ndarray:
+    """A KT3DMoSeg-format clip of two affine bodies (conftest ``affine_scene``), some tracks
+    missing at either end."""
+    tracks, labels = affine_scene((60, 50), frames, noise=0.3, seed=2)
     visible = np.ones(tracks.shape[:2], dtype=bool)
     visible[:2, ::7] = False  # born late
     visible[-2:, 3::9] = False  # lost early
@@ -63,8 +63,10 @@ def _write_clip(path: Path, frames: int = 8) -> np.ndarray:
 
 
 @pytest.mark.parametrize('mode', ['all', 'two', 'stream'])
-def test_a_clip_of_two_bodies_is_segmented_in_every_mode(tmp_path: Path, mode: str) -> None:
-    _write_clip(tmp_path / 'Seq001_Clip01_Tracks.mat')
+def test_a_clip_of_two_bodies_is_segmented_in_every_mode(
+    tmp_path: Path, mode: str, affine_scene
+) -> None:
+    _write_clip(tmp_path / 'Seq001_Clip01_Tracks.mat', affine_scene)
     task = Task('kt3dmoseg', str(tmp_path / 'Seq001_Clip01_Tracks.mat'), mode, PearlConfig(),
                 OnlineConfig(budget_ms=0.0))
     result = run_task(task)
