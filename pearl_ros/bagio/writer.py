@@ -38,8 +38,8 @@ from rosbags.typesys import Stores, get_typestore
 
 from pearl_ros.bagio import decode
 from pearl_ros.bagio.encode import MessageTypes, check_range, packed_cloud2
-from pearl_ros.bagio.reader import POINTCLOUD, POINTCLOUD2, TYPESTORE, FeatureFrame, one_line
-from pearl_ros.core.errors import BagError, InputError
+from pearl_ros.bagio.reader import POINTCLOUD, POINTCLOUD2, TYPESTORE, FeatureFrame
+from pearl_ros.core.errors import BagError, InputError, one_line
 
 FORMATS = {'pointcloud': POINTCLOUD, 'pointcloud2': POINTCLOUD2}
 STORAGES = {'mcap': StoragePlugin.MCAP, 'sqlite3': StoragePlugin.SQLITE3}
@@ -134,20 +134,11 @@ def write_feature_bag(
         )
     if path.exists() or path.is_symlink():
         raise BagError(f'{path} exists already; delete it or choose another path')
-    staging = _staging_folder(path)
-    try:
-        # Written under the final name so the storage file inside is <name>.mcap / <name>.db3.
-        staged = staging / path.name
-        _write(staged, frames, truth, topic, truth_topic, msg_format, storage, normalized,
+    with staged(path) as target:
+        _write(target, frames, truth, topic, truth_topic, msg_format, storage, normalized,
                frame_id)
         if path.exists() or path.is_symlink():
             raise BagError(f'{path} appeared while writing; not overwriting it')
-        try:
-            staged.rename(path)
-        except OSError as err:
-            raise BagError(f'cannot move the new bag to {path}: {err.strerror or err}') from err
-    finally:
-        shutil.rmtree(staging, ignore_errors=True)
 
 
 def _write(
@@ -179,7 +170,7 @@ def _write(
                 raw = TYPESTORE.serialize_cdr(msg, connection_.msgtype)
                 writer.write(connection_, stamp, bytes(raw))
     except (WriterError, SerdeError, OSError) as err:
-        raise BagError(f'cannot write bag {path.name}: {" ".join(str(err).split())}') from err
+        raise BagError(f'cannot write bag {path.name}: {one_line(err)}') from err
 
 
 class OutputBag:
@@ -282,10 +273,8 @@ def open_output_bag(
         raise BagError(f'{path} exists already')
     if exists and not is_bag(path):
         raise BagError(f'refusing to replace {path}: it is not a bag (no metadata.yaml)')
-    staging = _staging_folder(path)
-    try:
-        staged = staging / path.name  # so the storage file inside is <name>.mcap / <name>.db3
-        writer = Writer(staged, version=9, storage_plugin=STORAGES[storage])
+    with staged(path) as target:
+        writer = Writer(target, version=9, storage_plugin=STORAGES[storage])
         try:
             writer.open()
         except (WriterError, OSError) as err:
@@ -303,9 +292,6 @@ def open_output_bag(
             writer.close()
         except (WriterError, OSError) as err:
             raise BagError(f'cannot finish bag {path}: {one_line(err)}') from err
-        _move_into_place(staged, path, staging)
-    finally:
-        shutil.rmtree(staging, ignore_errors=True)
 
 
 def write_ros1_bag(source: str | Path, path: str | Path) -> None:
@@ -326,19 +312,14 @@ def write_ros1_bag(source: str | Path, path: str | Path) -> None:
         raise InputError(f'a ROS 1 bag file must end in .bag, got {path}')
     if path.exists() or path.is_symlink():
         raise BagError(f'{path} exists already; delete it or choose another path')
-    staging = _staging_folder(path)
-    try:
-        staged = staging / path.name
+    with staged(path) as target:
         try:
             convert(
-                [source], staged, 'sqlite3', 9, None, 'file',
+                [source], target, 'sqlite3', 9, None, 'file',
                 TYPESTORE, get_typestore(Stores.ROS1_NOETIC), [], [], [], [],
             )
         except (ConverterError, OSError) as err:
             raise BagError(f'cannot convert {source} to ROS 1: {one_line(err)}') from err
-        _move_into_place(staged, path, staging)
-    finally:
-        shutil.rmtree(staging, ignore_errors=True)
 
 
 def is_bag(path: Path) -> bool:
@@ -346,6 +327,29 @@ def is_bag(path: Path) -> bool:
     if path.is_dir() and not path.is_symlink():
         return (path / 'metadata.yaml').is_file()
     return path.suffix in ('.mcap', '.db3')
+
+
+@contextmanager
+def staged(path: Path) -> Iterator[Path]:
+    """Where to write the new ``path``: the same name in a hidden ``.<name>.*.partial`` folder
+    beside it (so a storage file inside is ``<name>.mcap`` / ``<name>.db3``).
+
+    When the block ends normally the result is moved to ``path``, replacing what is there (the
+    caller decides whether it may); when it raises, or is interrupted, the folder is deleted
+    and ``path`` is left as it was.
+
+    Raises
+    ------
+    BagError
+        The folder of ``path`` does not exist or cannot be written in, or the move fails.
+    """
+    staging = _staging_folder(path)
+    try:
+        target = staging / path.name
+        yield target
+        _move_into_place(target, path, staging)
+    finally:
+        shutil.rmtree(staging, ignore_errors=True)
 
 
 def _staging_folder(path: Path) -> Path:
@@ -359,15 +363,15 @@ def _staging_folder(path: Path) -> Path:
         raise BagError(f'cannot write in {parent}: {err.strerror or err}') from err
 
 
-def _move_into_place(staged: Path, path: Path, staging: Path) -> None:
-    """Rename ``staged`` to ``path``; an existing ``path`` goes to ``staging``, deleted with it."""
+def _move_into_place(new: Path, path: Path, staging: Path) -> None:
+    """Rename ``new`` to ``path``; an existing ``path`` goes to ``staging``, deleted with it."""
     old = staging / '.replaced'
     moved = False
     try:
         if path.exists() or path.is_symlink():
             path.rename(old)
             moved = True
-        staged.rename(path)
+        new.rename(path)
     except OSError as err:
         if moved and not path.exists():
             old.rename(path)  # put the old bag back

@@ -27,18 +27,24 @@ from __future__ import annotations
 import argparse
 import itertools
 import math
-import shutil
 import sys
-import tempfile
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import scipy.io
 
 from pearl_ros.bagio.reader import FeatureFrame
-from pearl_ros.bagio.writer import FORMATS, STORAGES, is_bag, write_feature_bag, write_ros1_bag
-from pearl_ros.core.errors import InputError, PearlError
+from pearl_ros.bagio.writer import (
+    FORMATS,
+    STORAGES,
+    is_bag,
+    staged,
+    write_feature_bag,
+    write_ros1_bag,
+)
+from pearl_ros.core.errors import InputError, PearlError, UsageParser, one_line
 from pearl_ros.datasets.hopkins import load_mat
 from pearl_ros.datasets.synthetic import BodySpec, synthetic_stream
 
@@ -50,17 +56,58 @@ SYNTHETIC_FOCAL = 500.0  # px
 SYNTHETIC_CENTRE = (320.0, 240.0)  # px
 
 
-class _UsageError(Exception):
-    """argparse found a bad command line."""
+@dataclass(frozen=True)
+class Output:
+    """How the bag is written, whatever its source.
 
+    Attributes
+    ----------
+    msg_format : {'pointcloud', 'pointcloud2'}
+        Message layout of the features (:data:`pearl_ros.bagio.writer.FORMATS`).
+    storage : {'mcap', 'sqlite3'}
+        rosbag2 storage of a bag folder (a ``*.bag`` path is a ROS 1 file).
+    topic, truth_topic : str
+        Topics of the features and of the ground truth.
+    force : bool
+        Replace an existing bag at the output path.
+    """
 
-class _Parser(argparse.ArgumentParser):
-    def error(self, message: str) -> None:  # type: ignore[override]
-        raise _UsageError(message)
+    msg_format: str = 'pointcloud'
+    storage: str = 'mcap'
+    topic: str = '/feature_tracker/feature'
+    truth_topic: str = '/ground_truth/labels'
+    force: bool = False
+
+    def check(self, out_bag: Path) -> None:
+        """InputError unless ``out_bag`` can be written: new, or a bag and ``force``."""
+        exists = out_bag.exists() or out_bag.is_symlink()
+        if exists and not self.force:
+            raise InputError(f'{out_bag} exists; pass --force to replace it')
+        if exists and not _is_bag(out_bag):
+            raise InputError(f'refusing to replace {out_bag}: it is not a bag (no metadata.yaml)')
+        if not out_bag.parent.is_dir():
+            raise InputError(f'output folder does not exist: {out_bag.parent}')
+
+    def write(self, out_bag: Path, frames: Iterable[FeatureFrame],
+              truth: Iterable[tuple[int, np.ndarray, np.ndarray]],
+              normalized: Callable[[np.ndarray], np.ndarray] | None, *, what: str,
+              truth_note: str = '') -> str:
+        """Write the bag, all or nothing (:func:`~pearl_ros.bagio.writer.staged`); the summary
+        line, saying ``what`` was written."""
+        with staged(out_bag) as target:
+            ros2 = target.with_name('ros2') if out_bag.suffix == '.bag' else target
+            write_feature_bag(ros2, frames, truth, topic=self.topic,
+                              truth_topic=self.truth_topic, msg_format=self.msg_format,
+                              storage=self.storage, normalized=normalized)
+            if ros2 != target:
+                write_ros1_bag(ros2, target)
+        container = 'ROS 1 bag' if out_bag.suffix == '.bag' else self.storage
+        return (f'wrote {out_bag}: {what}, {FORMATS[self.msg_format]} on {self.topic}, '
+                f'labels on {self.truth_topic}{truth_note}, {container}')
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = _Parser(
+    parser = UsageParser(
         prog='pearl_make_bag',
         description='Write a bag of tracked features with ground-truth labels, from a '
         'Hopkins-format *_truth.mat file or a synthetic stream.',
@@ -122,15 +169,14 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     try:
         args = parser.parse_args(argv)
-    except _UsageError as err:
+    except InputError as err:
         parser.print_usage(sys.stderr)
         print(f'error: {err}', file=sys.stderr)
         return 1
     except SystemExit as done:  # --help
         return int(done.code or 0)
     try:
-        common = {'msg_format': args.msg_format, 'storage': args.storage, 'topic': args.topic,
-                  'truth_topic': args.truth_topic, 'force': args.force}
+        output = Output(args.msg_format, args.storage, args.topic, args.truth_topic, args.force)
         if args.source == SYNTHETIC:
             summary = make_synthetic_bag(
                 args.out_bag,
@@ -140,7 +186,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                 death_rate=args.death_rate,
                 noise=args.noise,
                 seed=args.seed,
-                **common,
+                output=output,
             )
         else:
             summary = make_bag(
@@ -148,10 +194,10 @@ def main(argv: Sequence[str] | None = None) -> int:
                 args.out_bag,
                 rate=args.rate,
                 frames=parse_frames(args.frame_list) if args.frame_list is not None else None,
-                **common,
+                output=output,
             )
     except (PearlError, OSError) as err:
-        print(f'error: {" ".join(str(err).split())}', file=sys.stderr)
+        print(f'error: {one_line(err, None)}', file=sys.stderr)
         return 1
     print(summary)
     return 0
@@ -163,11 +209,7 @@ def make_bag(
     *,
     rate: float = 30.0,
     frames: Sequence[int] | None = None,
-    msg_format: str = 'pointcloud',
-    storage: str = 'mcap',
-    topic: str = '/feature_tracker/feature',
-    truth_topic: str = '/ground_truth/labels',
-    force: bool = False,
+    output: Output = Output(),
 ) -> str:
     """Write the bag of a Hopkins-format file; returns a one-line summary.
 
@@ -179,8 +221,7 @@ def make_bag(
     mat_file, out_bag = Path(mat_file), Path(out_bag)
     if not mat_file.is_file():
         raise InputError(f'no such .mat file: {mat_file}')
-    replace = _check_output(out_bag, force)
-
+    output.check(out_bag)
     sequence = load_mat(mat_file)
     normalized = normaliser(scipy.io.loadmat(str(mat_file)), mat_file)
     num_frames, num_points, _ = sequence.tracks.shape
@@ -193,15 +234,9 @@ def make_bag(
             yield FeatureFrame(stamp, ids, sequence.tracks[index])
 
     truth = ((stamp, ids, sequence.labels) for stamp in stamps)
-    _write_atomically(out_bag, replace, lambda target: write_feature_bag(
-        target, feature_frames(), truth, topic=topic, truth_topic=truth_topic,
-        msg_format=msg_format, storage=storage, normalized=normalized))
     which = '' if frames is None else f' (frames {",".join(map(str, kept))} of {num_frames})'
-    return (
-        f'wrote {out_bag}: {len(kept)} frames{which} x {num_points} points, '
-        f'{sequence.num_motions} motions, {FORMATS[msg_format]} on {topic}, '
-        f'labels on {truth_topic}, {_container(out_bag, storage)}'
-    )
+    return output.write(out_bag, feature_frames(), truth, normalized, what=(
+        f'{len(kept)} frames{which} x {num_points} points, {sequence.num_motions} motions'))
 
 
 def make_synthetic_bag(
@@ -213,11 +248,7 @@ def make_synthetic_bag(
     death_rate: float = 0.02,
     noise: float = 0.5,
     seed: int = 0,
-    msg_format: str = 'pointcloud',
-    storage: str = 'mcap',
-    topic: str = '/feature_tracker/feature',
-    truth_topic: str = '/ground_truth/labels',
-    force: bool = False,
+    output: Output = Output(),
 ) -> str:
     """Write a bag of :func:`~pearl_ros.datasets.synthetic.synthetic_stream`; a summary line.
 
@@ -236,7 +267,7 @@ def make_synthetic_bag(
         raise InputError(f'noise must be a finite number of pixels >= 0, got {noise}')
     if sum(o.share for o in objects) >= 1:
         raise InputError('objects must leave a positive share of features to the background')
-    replace = _check_output(out_bag, force)
+    output.check(out_bag)
     stream = list(synthetic_stream(num_features, num_frames, tuple(objects), death_rate, noise,
                                    seed, start_ns=EPOCH_NS))
     frames = [FeatureFrame(f.stamp_ns, f.ids, f.uv) for f in stream]
@@ -248,15 +279,10 @@ def make_synthetic_bag(
         xy: np.ndarray = (uv - centre) / SYNTHETIC_FOCAL
         return xy
 
-    _write_atomically(out_bag, replace, lambda target: write_feature_bag(
-        target, frames, truth, topic=topic, truth_topic=truth_topic, msg_format=msg_format,
-        storage=storage, normalized=normalized))
     ids = set().union(*(f.ids.tolist() for f in stream))
-    return (
-        f'wrote {out_bag}: synthetic, {num_frames} frames x {num_features} features '
-        f'({len(ids)} ids), {len(objects)} objects, {FORMATS[msg_format]} on {topic}, '
-        f'labels on {truth_topic} per frame, {_container(out_bag, storage)}'
-    )
+    return output.write(out_bag, frames, truth, normalized, truth_note=' per frame', what=(
+        f'synthetic, {num_frames} frames x {num_features} features ({len(ids)} ids), '
+        f'{len(objects)} objects'))
 
 
 def parse_frames(text: str) -> list[int]:
@@ -298,47 +324,6 @@ def parse_objects(items: Sequence[str]) -> list[BodySpec]:
             raise InputError(f'--object {item!r}: need 0 < share < 1, start >= 0, stop > start')
         specs.append(BodySpec(share, start, stop))
     return specs
-
-
-def _check_output(out_bag: Path, force: bool) -> bool:
-    """Whether ``out_bag`` exists and may be replaced; InputError if it may not."""
-    replace = out_bag.exists() or out_bag.is_symlink()
-    if replace and not force:
-        raise InputError(f'{out_bag} exists; pass --force to replace it')
-    if replace and not _is_bag(out_bag):
-        raise InputError(f'refusing to replace {out_bag}: it is not a bag (no metadata.yaml)')
-    if not out_bag.parent.is_dir():
-        raise InputError(f'output folder does not exist: {out_bag.parent}')
-    return replace
-
-
-def _write_atomically(out_bag: Path, replace: bool, write: Callable[[Path], None]) -> None:
-    """Run ``write(path)`` into a staging folder, convert to ROS 1 for ``*.bag``, move in place.
-
-    A failure leaves ``out_bag`` as it was (an old bag stays when replacing).
-    """
-    staging = Path(tempfile.mkdtemp(prefix=f'.{out_bag.name}.', suffix='.partial',
-                                    dir=out_bag.parent))
-    try:
-        if out_bag.suffix == '.bag':
-            write(staging / 'ros2')
-            staged = staging / out_bag.name
-            write_ros1_bag(staging / 'ros2', staged)
-        else:
-            staged = staging / out_bag.name
-            write(staged)
-        if replace:
-            if out_bag.is_dir() and not out_bag.is_symlink():
-                shutil.rmtree(out_bag)
-            else:
-                out_bag.unlink()
-        staged.rename(out_bag)
-    finally:
-        shutil.rmtree(staging, ignore_errors=True)
-
-
-def _container(out_bag: Path, storage: str) -> str:
-    return 'ROS 1 bag' if out_bag.suffix == '.bag' else storage
 
 
 def normaliser(

@@ -18,13 +18,12 @@ from __future__ import annotations
 import argparse
 import os
 import sys
-import typing
 from collections.abc import Sequence
 from pathlib import Path
 
 from pearl_ros import scoring
 from pearl_ros.bagio import reader
-from pearl_ros.core.errors import BagError, InputError, PearlError
+from pearl_ros.core.errors import BagError, PearlError, UsageParser
 
 # Python that reads an output bag, printed by --explain (a test runs it).
 SNIPPET = """\
@@ -47,15 +46,8 @@ _CONTENTS = {
 }
 
 
-class _Parser(argparse.ArgumentParser):
-    """Usage errors raise InputError, so that main prints one ``error:`` line and returns 1."""
-
-    def error(self, message: str) -> typing.NoReturn:
-        raise InputError(message)
-
-
 def build_parser() -> argparse.ArgumentParser:
-    parser = _Parser(prog='pearl_score', description=(__doc__ or '').split('\n\n')[0])
+    parser = UsageParser(prog='pearl_score', description=(__doc__ or '').split('\n\n')[0])
     parser.add_argument('labels_bag', type=Path, metavar='LABELS_BAG',
                         help='bag with motion labels (pearl_replay output, a recording)')
     parser.add_argument('--truth', type=Path, metavar='BAG',
@@ -115,7 +107,7 @@ def report(scores: Sequence[scoring.FrameScore], per_frame: bool) -> list[str]:
 
 def explain(bag: Path, labels_topic: str) -> list[str]:
     """What the bag holds (topics, message counts) and how to look at it."""
-    counts = _counts(bag)
+    counts = reader.topic_counts(bag)
     lines = ['', f'{bag} is a ROS 2 bag; its topics (messages):']
     for topic, (msgtype, count) in counts.items():
         lines.append(f'  {topic} ({count}): {_CONTENTS.get(topic, msgtype)}')
@@ -156,23 +148,6 @@ def _command(path: str, name: str) -> str:
         return name
     relative = os.path.relpath(path)
     return relative if not relative.startswith('..') else path
-
-
-def _counts(bag: Path) -> dict[str, tuple[str, int]]:
-    """Topic -> (message type, message count) of a bag."""
-    from rosbags.highlevel import AnyReader
-
-    counts: dict[str, tuple[str, int]] = {}
-    try:
-        with AnyReader([bag], default_typestore=reader.TYPESTORE) as opened:
-            for connection in opened.connections:
-                _, before = counts.get(connection.topic, (connection.msgtype, 0))
-                counts[connection.topic] = (connection.msgtype,
-                                            before + int(connection.msgcount))
-    except Exception as err:  # the bag was just read by score_bag: only a race gets here
-        raise BagError(f'cannot open bag {bag}: {" ".join(str(err).split())}') from err
-    return counts
-
 
 
 if __name__ == '__main__':

@@ -14,7 +14,6 @@ Example
 
 from __future__ import annotations
 
-import argparse
 import os
 import sys
 import typing
@@ -23,11 +22,9 @@ from pathlib import Path
 
 import numpy as np
 
-from pearl_ros.core.errors import InputError, PearlError
+from pearl_ros import scoring
+from pearl_ros.core.errors import InputError, PearlError, UsageParser
 
-# One character per label: digits, then letters; '-' marks an outlier, '?' a label beyond 'z'.
-_SYMBOLS = '0123456789abcdefghijklmnopqrstuvwxyz'
-_OUTLIER_SYMBOL = '-'
 _TRUTH_TOPIC = '/ground_truth/labels'  # read_ground_truth's default topic
 
 
@@ -68,7 +65,7 @@ def stack_tracks(frames: Sequence[typing.Any]) -> tuple[np.ndarray, np.ndarray]:
         common = np.intersect1d(common, ids, assume_unique=True)
     common = np.sort(common)
     tracks = np.empty((len(frames), common.size, 2), dtype=np.float64)
-    for k, (frame, ids) in enumerate(zip(frames, id_sets)):
+    for k, (frame, ids) in enumerate(zip(frames, id_sets, strict=True)):
         order = np.argsort(ids, kind='stable')
         pos = order[np.searchsorted(ids[order], common)]
         tracks[k] = np.asarray(frame.uv, dtype=np.float64)[pos]
@@ -76,11 +73,9 @@ def stack_tracks(frames: Sequence[typing.Any]) -> tuple[np.ndarray, np.ndarray]:
 
 
 def label_string(labels: np.ndarray, width: int = 80) -> str:
-    """Labels ``(N,)`` as one character each (``-`` for outliers), wrapped at ``width``."""
-    text = ''.join(
-        _OUTLIER_SYMBOL if label < 0 else (_SYMBOLS[label] if label < len(_SYMBOLS) else '?')
-        for label in np.asarray(labels).tolist()
-    )
+    """Labels ``(N,)`` one character each, as :func:`pearl_ros.scoring.label_string` writes
+    them (``-`` for outliers), wrapped at ``width``."""
+    text = scoring.label_string(labels)
     # Plain slices: textwrap would break lines after the '-' of an outlier.
     return '\n'.join(text[k : k + width] for k in range(0, len(text), width))
 
@@ -128,16 +123,9 @@ def segment_bag(path: Path, seed: int) -> str:
     return '\n'.join(lines)
 
 
-class _Parser(argparse.ArgumentParser):
-    """Usage errors raise InputError, so that main prints one ``error:`` line and returns 1."""
-
-    def error(self, message: str) -> typing.NoReturn:
-        raise InputError(message)
-
-
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of ``pearl_segment_bag``; returns the exit code."""
-    parser = _Parser(
+    parser = UsageParser(
         prog='pearl_segment_bag',
         description='Segment the feature tracks of recorded bags with PEaRL (affine model, '
         'all frames, default configuration) and compare with their ground truth.',

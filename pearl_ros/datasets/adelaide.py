@@ -11,8 +11,9 @@ import numpy as np
 import scipy.io
 from scipy.io.matlab import MatReadError
 
-from pearl_ros.core.errors import InputError
+from pearl_ros.core.errors import InputError, one_line
 from pearl_ros.core.labels import OUTLIER
+from pearl_ros.datasets._files import data_files
 
 
 @dataclass(frozen=True)
@@ -47,7 +48,7 @@ def load_pair(path: str | Path) -> Pair:
         data = np.asarray(mat['data'], dtype=np.float64)
         label = np.asarray(mat['label']).ravel().astype(np.int64)
     except (OSError, ValueError, KeyError, MatReadError) as err:
-        raise InputError(f'cannot read AdelaideRMF pair {path}: {err}') from err
+        raise InputError(f'cannot read AdelaideRMF pair {path}: {one_line(err)}') from err
     if data.ndim != 2 or data.shape[0] != 6 or label.size != data.shape[1]:
         raise InputError(f'{path}: data must be 6 x N with N labels, got {data.shape} and '
                          f'{label.size} labels')
@@ -60,11 +61,5 @@ def load_pair(path: str | Path) -> Pair:
 
 
 def pair_paths(root: str | Path) -> list[Path]:
-    """The pair files under ``root``, sorted by name."""
-    root = Path(root)
-    if not root.is_dir():
-        raise InputError(f'AdelaideRMF folder not found: {root}')
-    paths = sorted(root.glob('*.mat'))
-    if not paths:
-        raise InputError(f'no .mat pairs in {root}')
-    return paths
+    """The pair files under ``root``, sorted by name; InputError if there are none."""
+    return data_files(root, '*.mat', 'AdelaideRMF', 'pairs')

@@ -9,7 +9,8 @@ import numpy as np
 import scipy.io
 from scipy.io.matlab import MatReadError
 
-from pearl_ros.core.errors import InputError
+from pearl_ros.core.errors import InputError, one_line
+from pearl_ros.datasets._files import data_files
 
 # Articulated / non-rigid sequences, by the grouping of the Hopkins155 README.
 _ARTICULATED = ('arm', 'articulated', 'people', 'kanatani3', 'head', 'two_cranes', 'dancing')
@@ -61,7 +62,7 @@ def load_mat(path: str | Path, name: str | None = None) -> Sequence:
     try:
         mat = scipy.io.loadmat(str(path))
     except (OSError, ValueError, MatReadError) as err:
-        raise InputError(f'cannot read Hopkins .mat file {path}: {err}') from err
+        raise InputError(f'cannot read Hopkins .mat file {path}: {one_line(err)}') from err
     missing = [key for key in ('y', 's') if key not in mat]
     if missing:
         raise InputError(f'{path} is not a Hopkins truth file: missing field(s) {missing}')
@@ -85,10 +86,8 @@ def load_sequence(root: str | Path, name: str) -> Sequence:
 
 def sequence_names(root: str | Path, include_dancing: bool = False) -> list[str]:
     """Names of the sequences under ``root``, sorted; ``dancing`` is left out by convention."""
-    root = Path(root)
-    if not root.is_dir():
-        raise InputError(f'Hopkins155 folder not found: {root}')
-    names = sorted(p.parent.name for p in root.glob('*/*_truth.mat'))
+    files = data_files(root, '*/*_truth.mat', 'Hopkins155', 'sequences')
+    names = sorted(path.parent.name for path in files)
     if not include_dancing:
         names = [n for n in names if n != 'dancing']
     return names

@@ -16,7 +16,8 @@ import numpy as np
 import scipy.io
 from scipy.io.matlab import MatReadError
 
-from pearl_ros.core.errors import InputError
+from pearl_ros.core.errors import InputError, one_line
+from pearl_ros.datasets._files import data_files
 
 
 @dataclass(frozen=True)
@@ -69,7 +70,7 @@ def load_clip(path: str | Path) -> Clip:
         visible = np.asarray(data.visibleSparse).astype(bool).T
         groups = np.asarray(data.GtLabel).ravel().astype(np.int64)
     except (OSError, ValueError, KeyError, AttributeError, MatReadError) as err:
-        raise InputError(f'cannot read KT3DMoSeg clip {path}: {err}') from err
+        raise InputError(f'cannot read KT3DMoSeg clip {path}: {one_line(err)}') from err
     if y.ndim != 3 or y.shape[0] != 3 or visible.shape != (y.shape[2], y.shape[1]):
         raise InputError(f'{path}: ySparse must be 3 x P x F and visibleSparse P x F, got '
                          f'{y.shape} and {visible.T.shape}')
@@ -81,11 +82,5 @@ def load_clip(path: str | Path) -> Clip:
 
 
 def clip_paths(root: str | Path) -> list[Path]:
-    """The clip files under ``root``, sorted by name."""
-    root = Path(root)
-    if not root.is_dir():
-        raise InputError(f'KT3DMoSeg folder not found: {root}')
-    paths = sorted(root.glob('*_Tracks.mat'))
-    if not paths:
-        raise InputError(f'no *_Tracks.mat clips in {root}')
-    return paths
+    """The clip files under ``root``, sorted by name; InputError if there are none."""
+    return data_files(root, '*_Tracks.mat', 'KT3DMoSeg', 'clips')
