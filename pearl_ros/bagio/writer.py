@@ -123,15 +123,9 @@ def write_feature_bag(
     """
     if msg_format not in FORMATS:
         raise InputError(f'msg_format must be one of {tuple(FORMATS)}, got {msg_format!r}')
-    if storage not in STORAGES:
-        raise InputError(f'storage must be one of {tuple(STORAGES)}, got {storage!r}')
     if truth is not None and truth_topic == topic:
         raise InputError(f'truth_topic must differ from topic, both are {topic!r}')
-    path = Path(path)
-    if path.suffix == '.bag':
-        raise InputError(
-            f'bag folder {path} must not end in .bag: rosbags reads *.bag as a ROS 1 bag file'
-        )
+    path = _ros2_path(path, storage, 'bag folder')
     if path.exists() or path.is_symlink():
         raise BagError(f'{path} exists already; delete it or choose another path')
     with staged(path) as target:
@@ -261,13 +255,7 @@ def open_output_bag(
     InputError
         Bad ``storage`` or a ``.bag`` name.
     """
-    if storage not in STORAGES:
-        raise InputError(f'storage must be one of {tuple(STORAGES)}, got {storage!r}')
-    path = Path(path)
-    if path.suffix == '.bag':
-        raise InputError(
-            f'output bag {path} must not end in .bag: rosbags reads *.bag as a ROS 1 bag file'
-        )
+    path = _ros2_path(path, storage, 'output bag')
     exists = path.exists() or path.is_symlink()
     if exists and not replace:
         raise BagError(f'{path} exists already')
@@ -327,6 +315,18 @@ def is_bag(path: Path) -> bool:
     if path.is_dir() and not path.is_symlink():
         return (path / 'metadata.yaml').is_file()
     return path.suffix in ('.mcap', '.db3')
+
+
+def _ros2_path(path: str | Path, storage: str, what: str) -> Path:
+    """``path`` of a ROS 2 bag to write with ``storage``, checked (InputError)."""
+    if storage not in STORAGES:
+        raise InputError(f'storage must be one of {tuple(STORAGES)}, got {storage!r}')
+    path = Path(path)
+    if path.suffix == '.bag':
+        raise InputError(
+            f'{what} {path} must not end in .bag: rosbags reads *.bag as a ROS 1 bag file'
+        )
+    return path
 
 
 @contextmanager

@@ -13,7 +13,7 @@ import math
 import statistics
 import time
 import tracemalloc
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -161,27 +161,30 @@ def latency_one(features: int, window: int, frames: int, config: PearlConfig,
     objects = (BodySpec(0.2), BodySpec(0.15, start=frames // 3), BodySpec(0.15, stop=frames // 2))
     stream = list(synthetic_stream(features, frames, objects, seed=seed))
     segmenter = OnlineSegmenter(config, dataclasses.replace(online, window=window))
-    latencies = []
     tracemalloc.start()
     try:
-        for frame in stream:
-            start = time.perf_counter()
-            result = segmenter.process(frame.stamp_ns, frame.ids, frame.uv)
-            latencies.append(1e3 * (time.perf_counter() - start))
+        for _ in _timed(segmenter, stream):
+            pass
         peak = tracemalloc.get_traced_memory()[1]
     finally:
         tracemalloc.stop()
     # Timing again without tracemalloc, whose hooks slow allocation-heavy code down.
     segmenter = OnlineSegmenter(config, dataclasses.replace(online, window=window))
     latencies, errors = [], []
-    for frame in stream:
-        start = time.perf_counter()
-        result = segmenter.process(frame.stamp_ns, frame.ids, frame.uv)
-        latencies.append(1e3 * (time.perf_counter() - start))
+    for (ms, result), frame in zip(_timed(segmenter, stream), stream, strict=True):
+        latencies.append(ms)
         errors.append(misclassification(result.labels, frame.truth))
     return LatencyRow(features, window, frames, seed, percentiles(latencies[window:]),
                       peak / 2**20, 100.0 * errors[-1],
                       100.0 * statistics.fmean(errors[window:] or errors))
+
+
+def _timed(segmenter: Any, stream: Sequence[Any]) -> Iterator[tuple[float, Any]]:
+    """``(latency ms, FrameResult)`` of each frame of ``stream`` through ``segmenter``."""
+    for frame in stream:
+        start = time.perf_counter()
+        result = segmenter.process(frame.stamp_ns, frame.ids, frame.uv)
+        yield 1e3 * (time.perf_counter() - start), result
 
 
 def format_latency(rows: Sequence[LatencyRow], title: str) -> str:
