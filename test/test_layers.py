@@ -26,6 +26,14 @@ MODULES = (
     'pearl_ros.cli.replay',
     'pearl_ros.cli.bench',
     'pearl_ros.cli.bench_stream',
+    'pearl_ros.cli.bench_sets',
+    'pearl_ros.cli.score',
+    'pearl_ros.scoring',
+    'pearl_ros.evaluation.sets',
+    'pearl_ros.datasets.adelaide',
+    'pearl_ros.datasets.kt3dmoseg',
+    'pearl_ros.datasets.outliers',
+    'pearl_ros.datasets.robot',
 )
 
 # A finder first on sys.meta_path records every attempt to import ROS client code, so even an
