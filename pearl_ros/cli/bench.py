@@ -29,14 +29,13 @@ import os
 import statistics
 import sys
 import time
-import typing
 from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, TextIO
 
 from pearl_ros.core.config import PearlConfig
-from pearl_ros.core.errors import InputError, PearlError
+from pearl_ros.core.errors import InputError, PearlError, UsageParser
 
 CATEGORIES = ('checkerboard', 'traffic', 'articulated')
 MOTION_GROUPS = (2, 3)  # columns always shown, as in Table 2.2; other counts only under 'all'
@@ -403,15 +402,8 @@ class _Progress:
         self.stream.flush()
 
 
-class _Parser(argparse.ArgumentParser):
-    """Usage errors raise InputError, so that main prints one ``error:`` line and returns 1."""
-
-    def error(self, message: str) -> typing.NoReturn:
-        raise InputError(message)
-
-
 def _build_parser() -> argparse.ArgumentParser:
-    parser = _Parser(
+    parser = UsageParser(
         prog='pearl_bench', description='Benchmark PEaRL motion segmentation on a dataset.'
     )
     commands = parser.add_subparsers(dest='dataset', metavar='DATASET', required=True)

@@ -16,16 +16,14 @@ import argparse
 import sys
 import time
 import typing
-from collections import Counter
 from collections.abc import Sequence
 from pathlib import Path
 
 from pearl_ros.bagio import decode
-from pearl_ros.bagio.reader import one_line
 from pearl_ros.bagio.writer import STORAGES
-from pearl_ros.core.errors import InputError, PearlError
+from pearl_ros.core.errors import PearlError, UsageParser, one_line
 from pearl_ros.pipeline import settings as pipeline_settings
-from pearl_ros.pipeline.messages import Skipped
+from pearl_ros.pipeline.messages import Skipped, SkipWarnings
 from pearl_ros.pipeline.replay import (
     INPUT_TOPIC,
     OUTPUT_TOPIC,
@@ -39,15 +37,8 @@ from pearl_ros.pipeline.replay import (
 )
 
 
-class _Parser(argparse.ArgumentParser):
-    """Usage errors raise InputError, so that main prints one ``error:`` line and returns 1."""
-
-    def error(self, message: str) -> typing.NoReturn:
-        raise InputError(message)
-
-
 def build_parser() -> argparse.ArgumentParser:
-    parser = _Parser(
+    parser = UsageParser(
         prog='pearl_replay',
         description='Segment the tracked features of a recorded bag with the online segmenter '
         '(the code pearl_node runs) and write motion labels and static features to a new '
@@ -179,30 +170,26 @@ class _ProgressBar:
 
 
 class _Warnings:
-    """Skip warnings on stderr: the first of each kind in full, then a count of them all."""
+    """Skip warnings on stderr (:class:`SkipWarnings`), clearing the progress bar first."""
 
     def __init__(self, stream: typing.TextIO, bar: _ProgressBar | None, topic: str) -> None:
         self._stream = stream
         self._bar = bar
-        self._topic = topic
-        self.kinds: Counter[str] = Counter()
+        self._skips = SkipWarnings(topic)
 
     def __call__(self, index: int, skip: Skipped) -> None:
-        self.kinds[skip.kind] += 1
-        if self.kinds[skip.kind] > 1:
+        line = self._skips.warn(index, skip)
+        if line is None:
             return
         if self._bar is not None:
             self._bar.clear()
-        where = f'message {index} on {self._topic} ' if index >= 0 else ''
-        print(f'warning: {where}{skip.line}', file=self._stream)
+        print(line, file=self._stream)
 
     def close(self) -> None:
         """The count, when some warnings were not shown (the rows are in ``--stats``)."""
-        total = sum(self.kinds.values())
-        if total > len(self.kinds):
-            kinds = ', '.join(f'{kind} {count}' for kind, count in sorted(self.kinds.items()))
-            print(f'warning: {total} messages skipped in all ({kinds})',
-                  file=self._stream)
+        line = self._skips.summary()
+        if line is not None:
+            print(line, file=self._stream)
 
 
 if __name__ == '__main__':

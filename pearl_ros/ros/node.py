@@ -51,7 +51,7 @@ from sensor_msgs.msg import PointCloud2
 from std_msgs.msg import Header
 from std_srvs.srv import Trigger
 
-from pearl_ros.core.errors import InputError
+from pearl_ros.core.errors import InputError, one_line
 from pearl_ros.online.config import unknown_parameter
 from pearl_ros.pipeline import settings as pipeline_settings
 from pearl_ros.pipeline.messages import MessagePipeline, Skipped
@@ -463,7 +463,7 @@ def _run(argv: list[str], files: list[str], stop: _StopRequest) -> int:
 
 def _fail(err: BaseException | str) -> int:
     """One ``error:`` line on stderr (rcl's messages lose their source locations); 1."""
-    text = ' '.join(str(err).split())
+    text = one_line(err, None)
     print(f'error: {text.split(", at /")[0]}', file=sys.stderr)
     return 1
 
