@@ -125,11 +125,11 @@ def _object_path(rng: np.random.Generator, count: int, size: tuple[int, int],
     h, w = extent
     centre = (w / 2, h / 2)
     if crossing:
+        # Out of view at both ends, whatever its rotation (growth 1 + 0.004 t < 1.2 to t = 50).
+        reach = width / 2 + 0.6 * np.hypot(w, h) + 2
         side = rng.choice([-1.0, 1.0])
-        start = np.array([width / 2 - side * (width / 2 + w * 0.6),
-                          rng.uniform(0.3, 0.7) * height])
-        end = np.array([width / 2 + side * (width / 2 + w * 0.6),
-                        rng.uniform(0.3, 0.7) * height])
+        start = np.array([width / 2 - side * reach, rng.uniform(0.3, 0.7) * height])
+        end = np.array([width / 2 + side * reach, rng.uniform(0.3, 0.7) * height])
         velocity = (end - start) / max(count - 1, 1)
     else:
         start = np.array([rng.uniform(0.25, 0.75) * width, rng.uniform(0.3, 0.7) * height])

@@ -34,6 +34,8 @@ DISTORTION_MODELS: dict[str, tuple[int, ...]] = {
     'equidistant': (4,),
 }
 
+_UNDISTORT_CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-12)
+
 
 @dataclass(frozen=True)
 class TrackerConfig:
@@ -127,7 +129,10 @@ class CameraModel:
             inv = np.linalg.inv(self.K)
             return np.asarray(points.reshape(-1, 2) @ inv[:2, :2].T + inv[:2, 2])
         else:
-            out = cv2.undistortPoints(points, self.K, self.distortion)
+            # By default cv2.undistortPoints stops after 5 iterations, ~1e-4 off at the edge of
+            # a strong lens: iterate to convergence.
+            out = cv2.undistortPoints(points, self.K, self.distortion, None, np.eye(3),
+                                      np.eye(3), criteria=_UNDISTORT_CRITERIA)
         return np.asarray(out, dtype=np.float64).reshape(-1, 2)
 
 
