@@ -3,9 +3,10 @@
 Shi-Tomasi corners (Shi & Tomasi 1994, ``cv2.goodFeaturesToTrack``) followed from frame to frame
 by pyramidal Lucas-Kanade (Bouguet 2000, ``cv2.calcOpticalFlowPyrLK``), with a forward-backward
 check (Kalal et al. 2010): a point tracked to the new frame and back must land within
-``fb_threshold`` px of where it started. New corners are detected only to top the count up to
-``max_features``, at least ``min_distance`` px from every live feature. Ids are integers counted
-up from 0 and never reused.
+``fb_threshold`` px of where it started, and the window must still look like itself
+(``max_residual``). New corners are detected only to top the count up to ``max_features`` (when
+it has fallen below ``top_up_share`` of it), at least ``min_distance`` px from every live
+feature. Ids are integers counted up from 0 and never reused.
 
 Unlike VINS-Mono's ``feature_tracker`` there is no epipolar (fundamental-matrix RANSAC) rejection:
 it would delete the features of every independently moving object, which are what a motion
@@ -43,13 +44,17 @@ class TrackerConfig:
 
     max_features: int = spec(300, 'target feature count; corners are detected only to top up',
                              low=1, high=100000)
+    top_up_share: float = spec(
+        0.9, 'new corners are detected, up to max_features, only in a frame where the count '
+        'has fallen below this share of max_features (1 = whenever one is missing; detection '
+        'costs about as much as tracking)', low=0.0, high=1.0)
     min_distance: float = spec(20.0, 'least distance of a new corner from any live feature, px',
                                low=0.0, high=10000.0)
     quality_level: float = spec(
         0.01, 'least Shi-Tomasi score of a corner, as a share of the best score in the image',
         low=1e-6, high=1.0)
     block_size: int = spec(3, 'side of the Shi-Tomasi gradient window, px', low=3, high=31)
-    window_size: int = spec(21, 'side of the Lucas-Kanade window, px (odd)', low=5, high=101)
+    window_size: int = spec(15, 'side of the Lucas-Kanade window, px (odd)', low=5, high=101)
     pyramid_levels: int = spec(3, 'pyramid levels above the image Lucas-Kanade uses',
                                low=0, high=8)
     max_iterations: int = spec(30, 'most Lucas-Kanade iterations per pyramid level',
@@ -274,7 +279,7 @@ class FeatureTracker:
         """New corners ``(M, 2)`` float32 to top the count up, away from the live features."""
         cfg = self.config
         need = cfg.max_features - len(self._uv)
-        if need <= 0:
+        if need <= 0 or len(self._uv) >= cfg.top_up_share * cfg.max_features:
             return np.zeros((0, 2), np.float32)
         mask = (self.mask.copy() if self.mask is not None
                 else np.full(gray.shape, 255, np.uint8))

@@ -94,6 +94,19 @@ def test_feature_count_stays_near_the_target(clip):
     assert counts.min() >= 0.9 * config.max_features
 
 
+def test_corners_are_detected_only_to_top_up(clip):
+    _, config, frames = clip
+    topped = 0
+    for tracks in frames[1:]:
+        survivors, new = np.count_nonzero(tracks.age > 1), np.count_nonzero(tracks.age == 1)
+        if survivors >= config.top_up_share * config.max_features:
+            assert new == 0
+        else:
+            assert new > 0 and len(tracks) <= config.max_features
+            topped += 1
+    assert 0 < topped < len(frames) - 1
+
+
 def test_new_corners_keep_the_minimum_distance(clip):
     _, config, frames = clip
     checked = 0
