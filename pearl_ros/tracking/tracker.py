@@ -68,6 +68,10 @@ class TrackerConfig:
         12.0, 'most mean absolute grey-level difference between a feature\'s window in the '
         'previous frame and where it is tracked to (Shi & Tomasi\'s dissimilarity: catches '
         'windows an occluding edge sweeps over); 0 = no check', low=0.0, high=255.0)
+    min_template_ncc: float = spec(
+        0.8, 'least normalised cross-correlation between a feature\'s window where it was first '
+        'seen and where it is now (catches a slow drift off its surface, which each frame-to-frame'
+        ' check passes); 0 = no check', low=0.0, high=1.0)
     border: int = spec(1, 'a track within this many px of the image edge is dropped',
                        low=0, high=1000)
 
@@ -176,6 +180,28 @@ class Tracks:
         return int(self.ids.size)
 
 
+def _patches(gray: np.ndarray, uv: np.ndarray, radius: int) -> np.ndarray:
+    """The ``(2 radius + 1)^2`` grey levels around each point ``uv`` ``(N, 2)``, bilinear, as rows
+    of an ``(N, P)`` float32 array."""
+    if len(uv) == 0:
+        return np.zeros((0, (2 * radius + 1) ** 2), np.float32)
+    steps = np.arange(-radius, radius + 1, dtype=np.float32)
+    dx, dy = np.meshgrid(steps, steps)
+    cols = (uv[:, 0, None] + dx.ravel()).astype(np.float32)
+    rows = (uv[:, 1, None] + dy.ravel()).astype(np.float32)
+    # Sampled from the uint8 image (no float copy of it): levels rounded, enough for a correlation.
+    sampled = cv2.remap(gray, cols, rows, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    return np.asarray(sampled, dtype=np.float32)
+
+
+def _ncc(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Normalised cross-correlation ``(N,)`` of the rows of ``a`` and ``b``."""
+    a = a - a.mean(axis=1, keepdims=True)
+    b = b - b.mean(axis=1, keepdims=True)
+    denominator = np.sqrt(np.sum(a * a, axis=1) * np.sum(b * b, axis=1))
+    return np.asarray(np.sum(a * b, axis=1) / np.maximum(denominator, 1e-9))
+
+
 def to_gray(image: np.ndarray) -> np.ndarray:
     """An ``(H, W)`` uint8 image from ``(H, W)``, ``(H, W, 1)`` or BGR ``(H, W, 3)`` uint8."""
     image = np.asarray(image)
@@ -215,6 +241,7 @@ class FeatureTracker:
             mask = np.where(mask != 0, 255, 0).astype(np.uint8)
         self.mask = mask
         self._next_id = 0
+        self._radius = self.config.window_size // 2
         self.reset()
 
     def reset(self) -> None:
@@ -224,6 +251,7 @@ class FeatureTracker:
         self._uv = np.zeros((0, 2), np.float32)
         self._ids = np.zeros(0, np.int64)
         self._age = np.zeros(0, np.int64)
+        self._templates = _patches(np.zeros((1, 1), np.uint8), self._uv, self._radius)
         self._xy: np.ndarray | None = None
         self._stamp: int | None = None
 
@@ -270,7 +298,12 @@ class FeatureTracker:
             back, back_ok = self._flow(gray, self._previous, moved[ok])
             error = np.linalg.norm(back - previous[ok], axis=1)
             ok[ok] = back_ok & (error <= self.config.fb_threshold)
+        if self.config.min_template_ncc > 0 and np.any(ok):
+            current = _patches(gray, moved[ok], self._radius)
+            ok[ok] = _ncc(self._templates[ok], current) >= self.config.min_template_ncc
         self._uv, self._ids, self._age = moved[ok], self._ids[ok], self._age[ok] + 1
+        if self.config.min_template_ncc > 0:
+            self._templates = self._templates[ok]
         if self._xy is not None:
             self._xy = self._xy[ok]
         return previous[ok].astype(np.float64)
@@ -328,6 +361,9 @@ class FeatureTracker:
         self._ids = np.concatenate([self._ids, np.arange(self._next_id, self._next_id + len(new))])
         self._next_id += len(new)
         self._age = np.concatenate([self._age, np.ones(len(new), np.int64)])
+        if self.config.min_template_ncc > 0:
+            self._templates = np.concatenate([self._templates,
+                                              _patches(gray, new, self._radius)])
         uv = self._uv.astype(np.float64)
         dt = None if stamp is None or self._stamp is None else (stamp - self._stamp) * 1e-9
         per_second = dt is not None and dt > 0
