@@ -11,6 +11,7 @@ from __future__ import annotations
 import sys
 from typing import Any, Literal
 
+import cv2
 import numpy as np
 
 from pearl_ros.core.errors import InputError
@@ -104,3 +105,25 @@ def array_to_image_fields(array: np.ndarray, encoding: str) -> dict[str, Any]:
     return {'height': height, 'width': width, 'encoding': encoding,
             'is_bigendian': int(sys.byteorder == 'big'),
             'step': width * channels * dtype.itemsize, 'data': native.tobytes()}
+
+
+# encoding -> OpenCV conversion to grey, for those that need one
+_TO_GRAY = {'bgr8': cv2.COLOR_BGR2GRAY, 'rgb8': cv2.COLOR_RGB2GRAY,
+            'bgra8': cv2.COLOR_BGRA2GRAY, 'rgba8': cv2.COLOR_RGBA2GRAY}
+
+
+def to_mono8(array: np.ndarray, encoding: str, shift: int = 8) -> np.ndarray:
+    """The ``(H, W)`` uint8 grey image a tracker takes, from an array of :func:`image_to_array`.
+
+    Colour is weighted as OpenCV does (0.299 R + 0.587 G + 0.114 B). mono16 is shifted right by
+    ``shift`` bits and saturated: 8 maps the full 16-bit range (as cv_bridge), 4 a 12-bit camera's.
+    """
+    _layout(encoding)
+    if not 0 <= shift <= 16:
+        raise InputError(f'shift must be within 0..16 bits, got {shift!r}')
+    if encoding == 'mono16':
+        return np.minimum(np.asarray(array, dtype=np.uint16) >> shift, 255).astype(np.uint8)
+    if encoding == 'mono8':
+        return np.ascontiguousarray(array, dtype=np.uint8)
+    return np.asarray(cv2.cvtColor(np.ascontiguousarray(array, dtype=np.uint8),
+                                   _TO_GRAY[encoding]))

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from pearl_ros.core.errors import InputError
-from pearl_ros.tracking.image import array_to_image_fields, image_to_array
+from pearl_ros.tracking.image import array_to_image_fields, image_to_array, to_mono8
 
 
 def _padded(array: np.ndarray, encoding: str, pad: int, bigendian: bool) -> SimpleNamespace:
@@ -93,3 +93,16 @@ def test_array_of_the_wrong_shape_or_dtype_is_refused():
     assert 'shape' in _one_line_error(array_to_image_fields, np.zeros((2, 2), np.uint8), 'bgr8')
     assert 'dtype' in _one_line_error(array_to_image_fields, np.zeros((2, 2), np.uint8),
                                       'mono16')
+
+
+def test_to_mono8_weighs_colours_and_shifts_16_bit():
+    bgr = np.array([[[255, 0, 0], [0, 255, 0], [0, 0, 255]]], np.uint8)
+    expected = np.rint(np.array([[0.114, 0.587, 0.299]]) * 255)
+    np.testing.assert_allclose(to_mono8(bgr, 'bgr8'), expected, atol=1)
+    np.testing.assert_array_equal(to_mono8(bgr[:, :, ::-1], 'rgb8'), to_mono8(bgr, 'bgr8'))
+    rgba = np.concatenate([bgr[:, :, ::-1], np.full((1, 3, 1), 7, np.uint8)], axis=2)
+    np.testing.assert_array_equal(to_mono8(rgba, 'rgba8'), to_mono8(bgr, 'bgr8'))
+    deep = np.array([[0, 255, 4095, 65535]], np.uint16)
+    np.testing.assert_array_equal(to_mono8(deep, 'mono16'), [[0, 0, 15, 255]])
+    np.testing.assert_array_equal(to_mono8(deep, 'mono16', shift=4), [[0, 15, 255, 255]])
+    assert 'shift' in _one_line_error(to_mono8, deep, 'mono16', 17)
