@@ -47,7 +47,7 @@ class TrackerConfig:
     top_up_share: float = spec(
         0.9, 'new corners are detected, up to max_features, only in a frame where the count '
         'has fallen below this share of max_features (1 = whenever one is missing; detection '
-        'costs about as much as tracking)', low=0.0, high=1.0)
+        'costs about as much as tracking)', low=0.01, high=1.0)
     min_distance: float = spec(20.0, 'least distance of a new corner from any live feature, px',
                                low=0.0, high=10000.0)
     quality_level: float = spec(

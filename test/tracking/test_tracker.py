@@ -240,11 +240,32 @@ def test_undistorted_camera_gives_inverse_intrinsics_and_the_tracker_reports_the
     assert FeatureTracker().track(_textured(3)).xy is None
 
 
+def test_a_new_image_size_ends_every_track_and_ids_count_on():
+    tracker = FeatureTracker(TrackerConfig(max_features=50))
+    first = tracker.track(_textured(6))
+    second = tracker.track(_textured(6, (200, 300)))
+    assert len(first) == len(second) == 50
+    assert second.ids.min() > first.ids.max() and np.all(second.age == 1)
+
+
+def test_camera_info_fields_give_the_camera_model():
+    info = type('Info', (), {'k': K.ravel().tolist(), 'd': [0.1, -0.02, 0.001, 0.0, 0.003],
+                             'distortion_model': 'plumb_bob'})()
+    camera = CameraModel.from_camera_info(info)
+    assert camera.model == 'plumb_bob'
+    np.testing.assert_array_equal(camera.K, K)
+    np.testing.assert_array_equal(camera.distortion, info.d)
+    uncalibrated = type('Info', (), {'k': [0.0] * 9, 'd': [], 'distortion_model': ''})
+    with pytest.raises(InputError, match='uncalibrated'):
+        CameraModel.from_camera_info(uncalibrated)
+
+
 @pytest.mark.parametrize('settings, name', [
     ({'max_features': 0}, 'max_features'), ({'min_distance': -1.0}, 'min_distance'),
     ({'quality_level': 2.0}, 'quality_level'), ({'window_size': 20}, 'window_size'),
     ({'pyramid_levels': 1.5}, 'pyramid_levels'), ({'fb_threshold': -0.5}, 'fb_threshold'),
     ({'max_residual': 300.0}, 'max_residual'), ({'border': -2}, 'border'),
+    ({'top_up_share': 0.0}, 'top_up_share'), ({'min_template_ncc': 1.5}, 'min_template_ncc'),
 ])
 def test_bad_settings_are_one_line_errors_naming_the_field(settings, name):
     with pytest.raises(InputError) as info:
