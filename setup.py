@@ -30,6 +30,7 @@ setup(
             'pearl_bench = pearl_ros.cli.bench:main',
             'pearl_segment_bag = pearl_ros.cli.segment_bag:main',
             'pearl_node = pearl_ros.ros.node:main',
+            'pearl_tracker = pearl_ros.ros.tracker_node:main',
             'pearl_node_bench = pearl_ros.ros.bench:main',
             'pearl_play = pearl_ros.ros.play:main',
             'pearl_replay = pearl_ros.cli.replay:main',
