@@ -224,10 +224,15 @@ class TrackerNode(Node):
         return self._tracker.camera
 
     def _on_camera_info(self, msg: CameraInfo) -> None:
-        """Use the intrinsics and distortion of ``msg`` from the next image on."""
+        """Use the intrinsics and distortion of ``msg`` from the next image on.
+
+        A refused one (an uncalibrated driver's all-zero K) is counted and warned about once,
+        not at every message; the previous model stays.
+        """
         key = (tuple(msg.k), tuple(msg.d), str(msg.distortion_model))
         if key == self._camera_key:
             return
+        self._camera_key = key
         try:
             camera = CameraModel.from_camera_info(msg)
         except InputError as err:
@@ -236,7 +241,6 @@ class TrackerNode(Node):
             self._throttle.warn('camera_info', f'camera_info refused, points stay as before: '
                                 f'{one_line(err)}')
             return
-        self._camera_key = key
         self._tracker.camera = camera
         self.get_logger().info(f'camera model from {self._info_sub.topic_name}: '
                                f'{camera.model}, points are normalised coordinates')

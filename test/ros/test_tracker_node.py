@@ -4,6 +4,7 @@ features out, checked against the tracker run offline on the same frames (the or
 from __future__ import annotations
 
 import os
+import signal
 import subprocess
 import sys
 from pathlib import Path
@@ -287,3 +288,65 @@ def test_tracker_feeds_pearl_node_which_labels_every_frame(ros: Ros) -> None:
         np.testing.assert_array_equal(got['u'], columns(features)['u_of_point'])
         assert np.all(got['label'] >= -1)
     assert len(labels) == len(scene.frames)
+
+
+def test_a_stamp_back_in_time_ends_every_track_and_ids_count_on(ros: Ros) -> None:
+    node, camera = start(ros)
+    before = [columns(camera.send(image_msg(frame, stamp)))['id_of_point']
+              for frame, stamp in zip(SCENE.frames[:2], STAMPS[:2], strict=True)]
+    again = columns(camera.send(image_msg(SCENE.frames[0], STAMPS[0] - 1)))
+    # All features new: ids never reused, velocities 0.
+    assert again['id_of_point'].min() > max(ids.max() for ids in before)
+    assert not np.any(again['velocity_x_of_point']) and not np.any(again['velocity_y_of_point'])
+    camera.last_diagnostics('track resets (stamp went back)', '1')
+    assert ros.spin_until(lambda: any('went back in time' in m.msg for m in camera.logs), 5.0)
+    assert node.stats.resets == 1
+
+
+def test_the_executable_tracks_for_another_process_and_stops_on_ctrl_c(ros: Ros) -> None:
+    process = subprocess.Popen(
+        [str(BIN / 'pearl_tracker'), '--ros-args', '-r', f'__ns:={ros.ns}',
+         '-p', 'max_features:=60', '-p', 'diagnostics_period:=0.2'],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        camera = Camera(ros)
+        assert ros.spin_until(
+            lambda: process.poll() is not None
+            or (camera.images.get_subscription_count() > 0
+                and camera.node.count_publishers(f'{ros.ns}/features') > 0), 30.0)
+        assert process.poll() is None, 'the node did not come up'
+        # Matching is decided on each side separately: send until one image is answered.
+        sent = 0
+
+        def answered() -> bool:
+            nonlocal sent
+            if not camera.features:
+                camera.images.publish(image_msg(SCENE.frames[0], STAMPS[0] + sent))
+                sent += 1
+                ros.spin_until(lambda: bool(camera.features), 0.3)
+            return bool(camera.features)
+        assert ros.spin_until(answered, 30.0), 'no features from the node'
+        msg = camera.send(image_msg(SCENE.frames[1], STAMPS[1]), timeout=15.0)
+        assert [c.name for c in msg.channels] == list(CHANNELS) and 0 < len(msg.points) <= 60
+    finally:
+        if process.poll() is None:
+            process.send_signal(signal.SIGINT)
+        try:
+            _, err = process.communicate(timeout=15)
+        except subprocess.TimeoutExpired:
+            process.kill()
+            _, err = process.communicate()
+    assert process.returncode == 0, err
+    assert 'Traceback' not in err
+
+
+def test_an_uncalibrated_camera_info_is_refused_once_and_points_stay_pixels(ros: Ros) -> None:
+    node, camera = start(ros)
+    for _ in range(3):  # an uncalibrated driver: all-zero K with every image
+        camera.info.publish(CameraInfo(header=header(STAMPS[0]), distortion_model='plumb_bob',
+                                       d=[0.0] * 5))
+    camera.last_diagnostics('camera_info refused', '1')
+    got = columns(camera.send(image_msg(SCENE.frames[0], STAMPS[0])))
+    np.testing.assert_array_equal(got['points'][:, 0], got['u_of_point'])
+    assert node.camera is None and node.stats.bad_camera_info == 1
+    assert ros.spin_until(lambda: any('camera_info refused' in m.msg for m in camera.logs), 5.0)
