@@ -250,6 +250,7 @@ class TrackerNode(Node):
         stats = self.stats
         stats.received += 1
         stats.period_received += 1
+        start = time.perf_counter()  # the frame's whole work: conversion, tracking, message
         gray = self._grey(msg)
         if gray is None:
             stats.period_problems += 1
@@ -261,7 +262,6 @@ class TrackerNode(Node):
             self.get_logger().warning(f'stamp {stamp} ns went back in time: tracks ended '
                                       '(bag replayed in a loop?)')
         self._last_stamp = stamp
-        start = time.perf_counter()
         try:
             tracks = self._tracker.track(gray, stamp)
             out = features_message(msg.header, tracks)

@@ -350,3 +350,22 @@ def test_an_uncalibrated_camera_info_is_refused_once_and_points_stay_pixels(ros:
     np.testing.assert_array_equal(got['points'][:, 0], got['u_of_point'])
     assert node.camera is None and node.stats.bad_camera_info == 1
     assert ros.spin_until(lambda: any('camera_info refused' in m.msg for m in camera.logs), 5.0)
+
+
+def test_a_parameter_file_sets_the_tracker_and_a_misspelt_name_in_it_is_refused(
+    ros: Ros, tmp_path: Path
+) -> None:
+    good = tmp_path / 'good.yaml'
+    good.write_text(f'{ros.ns}/pearl_tracker:\n  ros__parameters:\n    max_features: 50\n'
+                    '    fb_threshold: 2\n')  # an integer for a float: that float
+    node = ros.add(TrackerNode(context=ros.context, namespace=ros.ns,
+                               cli_args=['--ros-args', '--params-file', str(good)]))
+    assert node.tracker_config.max_features == 50
+    assert node.tracker_config.fb_threshold == 2.0
+    bad = tmp_path / 'bad.yaml'
+    bad.write_text('/**:\n  ros__parameters:\n    max_featurs: 50\n')
+    with pytest.raises(InputError) as caught:
+        TrackerNode('other', context=ros.context, namespace=ros.ns,
+                    cli_args=['--ros-args', '--params-file', str(bad)])
+    assert str(caught.value) == (f"parameter file {bad}: unknown parameter 'max_featurs' "
+                                 "(did you mean 'max_features'?)")
