@@ -12,7 +12,8 @@ Topics (names relative to the node's namespace unless absolute)
 ``features`` (out)
     ``sensor_msgs/msg/PointCloud`` in VINS-Mono's layout, with the image's header: ``points[i]``
     = undistorted normalised ``(x, y, 1)`` when intrinsics are known, else pixels ``(u, v, 1)``;
-    channels ``id_of_point``, ``u_of_point``, ``v_of_point`` (pixels), ``velocity_x_of_point``,
+    channels ``id_of_point`` (modulo 2^24: :func:`features_message`), ``u_of_point``,
+    ``v_of_point`` (pixels), ``velocity_x_of_point``,
     ``velocity_y_of_point`` (of the points: normalised or pixel units, per second when both
     frames have stamps). ``pearl_node`` (msg_type PointCloud, layout auto) and a VINS estimator
     both read it.
@@ -68,6 +69,7 @@ NODE_NAME = 'pearl_tracker'
 OUTPUT_DEPTH = 10  # messages, keep-last depth of the (reliable) output
 CHANNELS = ('id_of_point', 'u_of_point', 'v_of_point', 'velocity_x_of_point',
             'velocity_y_of_point')
+ID_MODULUS = 2**24  # published ids wrap here (float32 channels, features_message)
 
 
 @dataclass(frozen=True)
@@ -118,13 +120,18 @@ def build_configs(values: Mapping[str, Any]) -> tuple[TrackerConfig, TrackerNode
 
 
 def features_message(header: Header, tracks: Tracks) -> PointCloud:
-    """The VINS-Mono ``PointCloud`` of one frame's tracks (module docstring for the layout)."""
-    encode.check_float32_ids(tracks.ids)
+    """The VINS-Mono ``PointCloud`` of one frame's tracks (module docstring for the layout).
+
+    Ids are published modulo :data:`ID_MODULUS`: a float32 channel holds integers exactly only
+    up to 2^24, which a tracker detecting ~1000 corners a second passes in about five hours. An
+    id comes back only after 2^24 newer ones, long after its track ended.
+    """
     if tracks.xy is not None and tracks.xy_velocity is not None:
         points, velocity = tracks.xy, tracks.xy_velocity
     else:
         points, velocity = tracks.uv, tracks.velocity
-    columns = (tracks.ids, tracks.uv[:, 0], tracks.uv[:, 1], velocity[:, 0], velocity[:, 1])
+    columns = (tracks.ids % ID_MODULUS, tracks.uv[:, 0], tracks.uv[:, 1], velocity[:, 0],
+               velocity[:, 1])
     return PointCloud(
         header=header,
         points=[Point32(x=x, y=y, z=1.0) for x, y in points.tolist()],

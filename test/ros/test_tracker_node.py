@@ -23,10 +23,10 @@ from pearl_ros.bagio import decode
 from pearl_ros.core.config import parameter_specs
 from pearl_ros.core.errors import InputError
 from pearl_ros.ros.node import PearlNode
-from pearl_ros.ros.tracker_node import CHANNELS, NAMES, TrackerNode
+from pearl_ros.ros.tracker_node import CHANNELS, NAMES, TrackerNode, features_message
 from pearl_ros.tracking.image import array_to_image_fields
 from pearl_ros.tracking.render import render_scene
-from pearl_ros.tracking.tracker import FeatureTracker, TrackerConfig
+from pearl_ros.tracking.tracker import FeatureTracker, TrackerConfig, Tracks
 
 from ros_harness import RELIABLE, Ros, header
 
@@ -369,3 +369,12 @@ def test_a_parameter_file_sets_the_tracker_and_a_misspelt_name_in_it_is_refused(
                     cli_args=['--ros-args', '--params-file', str(bad)])
     assert str(caught.value) == (f"parameter file {bad}: unknown parameter 'max_featurs' "
                                  "(did you mean 'max_features'?)")
+
+
+def test_ids_wrap_at_2_to_the_24_where_float32_stops_being_exact() -> None:
+    ids = np.array([5, 2**24 - 1, 2**24, 2**24 + 7, 3 * 2**24 + 1])
+    uv = np.arange(10.0).reshape(5, 2)
+    tracks = Tracks(ids, uv, None, np.zeros((5, 2)), None, np.ones(5, np.int64))
+    got = columns(features_message(header(0), tracks))
+    np.testing.assert_array_equal(got['id_of_point'], [5, 2**24 - 1, 0, 7, 1])
+    np.testing.assert_array_equal(got['points'][:, :2], uv)
