@@ -129,7 +129,7 @@ class CameraModel:
 
     def normalise(self, uv: np.ndarray) -> np.ndarray:
         """Undistorted normalised coordinates ``(N, 2)`` of pixels ``uv`` ``(N, 2)``."""
-        points = np.asarray(uv, dtype=np.float64).reshape(-1, 1, 2)
+        points = np.ascontiguousarray(uv, dtype=np.float64).reshape(-1, 1, 2)
         if len(points) == 0:
             return np.zeros((0, 2))
         if self.model == 'equidistant':

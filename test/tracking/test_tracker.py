@@ -227,6 +227,9 @@ def test_undistortion_inverts_the_opencv_projection(model, coefficients):
         uv, _ = cv2.projectPoints(rays, zero, zero, K, dist)
     camera = CameraModel(K, dist, model)
     np.testing.assert_allclose(camera.normalise(uv.reshape(-1, 2)), xy, atol=1e-5)
+    # The columns of a wider array (a cloud's x, y of x, y, z) are not contiguous rows.
+    cloud = np.column_stack([uv.reshape(-1, 2), np.ones(len(xy))])
+    np.testing.assert_allclose(camera.normalise(cloud[:, :2]), xy, atol=1e-5)
 
 
 def test_undistorted_camera_gives_inverse_intrinsics_and_the_tracker_reports_them():
