@@ -384,7 +384,7 @@ example:
 """
 
 
-class _StopRequest:
+class StopRequest:
     """SIGINT and SIGTERM ask the spin loop to stop between callbacks, never inside one.
 
     rclpy's own handlers shut the context down at once, under a callback that may be
@@ -420,25 +420,25 @@ def main(args: list[str] | None = None) -> int:
             pipeline_settings.load_file(path, None)
         own = remove_ros_args(argv)[1:]
     except (InputError, RuntimeError) as err:  # RuntimeError: rclpy's RCLInvalidROSArgsError
-        return _fail(err)
+        return fail(err)
     if own and own[0] in ('-h', '--help'):
         print(USAGE.format(parameters=params.help_text()), end='')
         return 0
     if own:
-        return _fail(f'unrecognized arguments: {" ".join(own)} (ROS arguments go after '
+        return fail(f'unrecognized arguments: {" ".join(own)} (ROS arguments go after '
                      '--ros-args; see pearl_node --help)')
-    stop = _StopRequest()
+    stop = StopRequest()
     try:
         return _run(argv, files, stop)
     finally:
         stop.restore()
 
 
-def _run(argv: list[str], files: list[str], stop: _StopRequest) -> int:
+def _run(argv: list[str], files: list[str], stop: StopRequest) -> int:
     try:
         rclpy.init(args=argv, signal_handler_options=SignalHandlerOptions.NO)
     except RuntimeError as err:  # rclpy's RCLError
-        return _fail(err)
+        return fail(err)
     node = None
     try:
         node = PearlNode(params_files=files)
@@ -447,7 +447,7 @@ def _run(argv: list[str], files: list[str], stop: _StopRequest) -> int:
         while not stop.requested and rclpy.ok():
             executor.spin_once(timeout_sec=0.1)
     except (InputError, ParameterException) as err:
-        return _fail(err)
+        return fail(err)
     except ExternalShutdownException:
         pass
     except Exception:
@@ -461,7 +461,7 @@ def _run(argv: list[str], files: list[str], stop: _StopRequest) -> int:
     return 0
 
 
-def _fail(err: BaseException | str) -> int:
+def fail(err: BaseException | str) -> int:
     """One ``error:`` line on stderr (rcl's messages lose their source locations); 1."""
     text = one_line(err, None)
     print(f'error: {text.split(", at /")[0]}', file=sys.stderr)

@@ -61,7 +61,7 @@ from pearl_ros.core.errors import InputError, one_line
 from pearl_ros.online.config import unknown_parameter
 from pearl_ros.pipeline import settings as pipeline_settings
 from pearl_ros.ros import params
-from pearl_ros.ros.node import WARN_PERIOD_S, _fail, _StopRequest, input_qos
+from pearl_ros.ros.node import WARN_PERIOD_S, StopRequest, fail, input_qos
 from pearl_ros.tracking import image as image_io
 from pearl_ros.tracking.tracker import CameraModel, FeatureTracker, TrackerConfig, Tracks
 
@@ -445,25 +445,25 @@ def main(args: list[str] | None = None) -> int:
             pipeline_settings.load_file(path, None)
         own = remove_ros_args(argv)[1:]
     except (InputError, RuntimeError) as err:  # RuntimeError: rclpy's RCLInvalidROSArgsError
-        return _fail(err)
+        return fail(err)
     if own and own[0] in ('-h', '--help'):
         print(USAGE.format(parameters=help_text()), end='')
         return 0
     if own:
-        return _fail(f'unrecognized arguments: {" ".join(own)} (ROS arguments go after '
+        return fail(f'unrecognized arguments: {" ".join(own)} (ROS arguments go after '
                      '--ros-args; see pearl_tracker --help)')
-    stop = _StopRequest()
+    stop = StopRequest()
     try:
         return _run(argv, files, stop)
     finally:
         stop.restore()
 
 
-def _run(argv: list[str], files: list[str], stop: _StopRequest) -> int:
+def _run(argv: list[str], files: list[str], stop: StopRequest) -> int:
     try:
         rclpy.init(args=argv, signal_handler_options=SignalHandlerOptions.NO)
     except RuntimeError as err:  # rclpy's RCLError
-        return _fail(err)
+        return fail(err)
     node = None
     try:
         node = TrackerNode(params_files=files)
@@ -472,7 +472,7 @@ def _run(argv: list[str], files: list[str], stop: _StopRequest) -> int:
         while not stop.requested and rclpy.ok():
             executor.spin_once(timeout_sec=0.1)
     except (InputError, ParameterException) as err:
-        return _fail(err)
+        return fail(err)
     except ExternalShutdownException:
         pass
     except Exception:
