@@ -120,6 +120,10 @@ class SolverSettings:
     sigma_floor: float = spec(
         0.5, 'least noise level a model may claim, in units of the noise scale', low=1e-3,
         high=1.0)
+    outlier_tie: float = spec(
+        1.0, 'share of its weight a neighbour pair pays when cut with one end an outlier (1: '
+        'plain Potts; below 0.5 the expansions of the outlier label truncate the pairs it '
+        'breaks)', low=0.0, high=1.0)
     sigma_ceiling: float = spec(
         0.0, 'most noise level a model may claim, in units of the noise scale; 0 = none',
         low=0.0, high=1e6)

@@ -25,21 +25,39 @@ class Problem:
     weights : (E,) float64, Potts weight of each pair, lambda included; a negative weight
         rewards cutting the pair (:func:`pearl_ros.core.expansion.expansion_move` truncates it)
     label_costs : (L,) float64, cost of each label in use (>= 0)
+    outlier_row : int, the row of the outlier label, or -1 for none
+    outlier_tie : float in [0, 1], the share of its weight a pair pays when it is cut with one
+        end on the outlier row (1: plain Potts). Below 1/2 the term is no longer a metric, and
+        expansions of the outlier label truncate the pairs it breaks.
     """
 
     unary: np.ndarray
     edges: np.ndarray
     weights: np.ndarray
     label_costs: np.ndarray
+    outlier_row: int = -1
+    outlier_tie: float = 1.0
 
     @property
     def num_points(self) -> int:
         return int(self.unary.shape[1])
 
 
+def pair_costs(problem: Problem, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """The pair term of every edge, ``(E,)``, when its two ends hold labels ``a`` and ``b``."""
+    cost: np.ndarray = problem.weights * (a != b)
+    if problem.outlier_tie != 1.0:
+        touches = (a == problem.outlier_row) | (b == problem.outlier_row)
+        cost = np.where(touches, problem.outlier_tie * cost, cost)
+    return cost
+
+
 def energy(problem: Problem, labels: np.ndarray) -> float:
     """E(f) of ``labels`` (N,) int, indices into the rows of ``problem.unary``."""
     data = problem.unary[labels, np.arange(labels.size)].sum()
     p, q = problem.edges[:, 0], problem.edges[:, 1]
-    smooth = problem.weights[labels[p] != labels[q]].sum()
+    if problem.outlier_tie == 1.0:
+        smooth = problem.weights[labels[p] != labels[q]].sum()
+    else:
+        smooth = pair_costs(problem, labels[p], labels[q]).sum()
     return float(data + smooth + problem.label_costs[np.unique(labels)].sum())

@@ -13,7 +13,7 @@ from __future__ import annotations
 import maxflow
 import numpy as np
 
-from pearl_ros.core.energy import Problem
+from pearl_ros.core.energy import Problem, pair_costs
 
 
 def expansion_move(problem: Problem, labels: np.ndarray, alpha: int) -> np.ndarray:
@@ -36,20 +36,17 @@ def expansion_move(problem: Problem, labels: np.ndarray, alpha: int) -> np.ndarr
     #   E(x_p, x_q) = A + (C - A) x_p + (D - C) x_q + (B + C - A - D)(1 - x_p) x_q
     # with A = E00, B = E01, C = E10, D = E11 = 0 (Kolmogorov & Zabih 2004).
     p, q = problem.edges[:, 0], problem.edges[:, 1]
-    w = problem.weights
-    # A negative weight makes the term non-submodular when both ends keep labels other than
-    # alpha (pair < 0 below). Such an edge is truncated: its pair term is left out, which
-    # overstates the cost of "p keeps, q switches" by -pair and leaves the three other cases
-    # exact. So that the case kept exact is the likelier one, p is made the end that gains
-    # more by switching.
-    risky = (w < 0) & (labels[p] != alpha) & (labels[q] != alpha)
+    # A negative weight, or a pair cut with the outlier label paying less than half its weight
+    # (Problem.outlier_tie), makes the term non-submodular (pair < 0 below). Such an edge is
+    # truncated: its pair term is left out, which overstates the cost of "p keeps, q switches"
+    # by -pair and leaves the three other cases exact. So that the case kept exact is the
+    # likelier one, p is made the end that gains more by switching.
+    e00, e01, e10 = _pair_cases(problem, labels[p], labels[q], alpha)
+    risky = e01 + e10 - e00 < 0
     gain = cost_keep - cost_switch
     flip = risky & (gain[q] > gain[p])
     p, q = np.where(flip, q, p), np.where(flip, p, q)
-    a, b = labels[p], labels[q]
-    e00 = w * (a != b)
-    e01 = w * (a != alpha)
-    e10 = w * (b != alpha)
+    e01, e10 = np.where(flip, e10, e01), np.where(flip, e01, e10)  # V is symmetric
     _add_unary(src, snk, p, e10 - e00)
     _add_unary(src, snk, q, -e10)
     pair = e01 + e10 - e00  # >= 0 but on truncated edges: the move is submodular
@@ -93,6 +90,15 @@ def expansion_move(problem: Problem, labels: np.ndarray, alpha: int) -> np.ndarr
     graph.maxflow()
     switch = graph.get_grid_segments(nodes[:n])
     return np.where(switch, alpha, labels)
+
+
+def _pair_cases(problem: Problem, a: np.ndarray, b: np.ndarray, alpha: int
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Pair terms of every edge with ends at labels ``a``, ``b``: both keep (E00), only the
+    second switches to ``alpha`` (E01), only the first does (E10); both switching costs 0."""
+    to_alpha = np.full_like(a, alpha)
+    return (pair_costs(problem, a, b), pair_costs(problem, a, to_alpha),
+            pair_costs(problem, to_alpha, b))
 
 
 def _add_unary(src: np.ndarray, snk: np.ndarray, nodes: np.ndarray, coef: np.ndarray) -> None:

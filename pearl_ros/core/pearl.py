@@ -16,6 +16,7 @@ as :data:`~pearl_ros.core.labels.OUTLIER` (-1) and models as 0..K-1.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 from collections.abc import Iterator
@@ -188,7 +189,8 @@ class _Setting:
     def problem(self, unary: np.ndarray) -> Problem:
         costs = np.full(unary.shape[0], self.label_cost)
         costs[OUTLIER_ROW] = 0.0
-        return Problem(unary, self.edges, self.weights, costs)
+        return Problem(unary, self.edges, self.weights, costs, OUTLIER_ROW,
+                       self.solver.outlier_tie)
 
 
 @dataclass(eq=False)
@@ -664,7 +666,7 @@ def _split_trial(search: _Search, alpha: int
     # Expanded as if alpha were free: its label cost is paid, if at all, by the refits.
     free = problem.label_costs.copy()
     free[alpha] = 0.0
-    moved = expansion_move(Problem(unary, problem.edges, problem.weights, free), labels, alpha)
+    moved = expansion_move(dataclasses.replace(problem, label_costs=free), labels, alpha)
     losers = np.unique(labels[moved != labels])
     losers = losers[losers != OUTLIER_ROW]
     if losers.size == 0:
@@ -679,8 +681,7 @@ def _split_trial(search: _Search, alpha: int
         if fitted is not None:
             refits[label] = fitted
             trial[label] = fitted[3] + search.bias[label]
-    moved_energy = energy(Problem(trial, problem.edges, problem.weights, problem.label_costs),
-                          moved)
+    moved_energy = energy(dataclasses.replace(problem, unary=trial), moved)
     return moved, refits, moved_energy
 
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
 
 import numpy as np
@@ -119,3 +120,50 @@ def test_a_reward_for_cutting_a_pair_lets_one_end_switch_alone():
                                          labels, 1), [0, 0])
     assert np.array_equal(expansion_move(Problem(unary, edges, np.array([-3.0]), costs),
                                          labels, 1), [0, 1])
+
+
+@pytest.mark.parametrize('tie', [0.5, 0.8])
+@pytest.mark.parametrize('seed', range(8))
+def test_a_softer_outlier_tie_that_stays_metric_keeps_moves_optimal(seed, tie):
+    # V(a, out) = tie w with tie >= 1/2 is a metric: every expansion move is a submodular cut.
+    rng = np.random.default_rng(100 + seed)
+    for _ in range(10):
+        n = int(rng.integers(2, 9))
+        base = random_problem(rng, n, int(rng.integers(2, 6)))
+        problem = dataclasses.replace(base, outlier_row=0, outlier_tie=tie)
+        labels = rng.integers(0, problem.unary.shape[0], n)
+        alpha = int(rng.integers(0, problem.unary.shape[0]))
+        moved = expansion_move(problem, labels, alpha)
+        assert energy(problem, moved) == pytest.approx(best_move_energy(problem, labels, alpha),
+                                                       abs=1e-9)
+
+
+@pytest.mark.parametrize('seed', range(10))
+def test_a_free_outlier_tie_never_makes_a_move_worse(seed):
+    # Below 1/2 the outlier label's expansions break pairs of two motions at a saving the cut
+    # cannot hold; those pairs are truncated, and the move is still never worse than staying.
+    rng = np.random.default_rng(200 + seed)
+    worse_than_best = 0
+    for _ in range(10):
+        n = int(rng.integers(2, 9))
+        problem = dataclasses.replace(random_problem(rng, n, int(rng.integers(2, 6))),
+                                      outlier_row=0, outlier_tie=float(rng.uniform(0, 0.5)))
+        labels = rng.integers(0, problem.unary.shape[0], n)
+        alpha = int(rng.integers(0, problem.unary.shape[0]))
+        moved = expansion_move(problem, labels, alpha)
+        assert energy(problem, moved) <= energy(problem, labels) + 1e-9
+        best = best_move_energy(problem, labels, alpha)
+        assert energy(problem, moved) >= best - 1e-9
+        worse_than_best += energy(problem, moved) > best + 1e-9
+    # Expansions of a motion label stay exact: only some outlier expansions fall short.
+    assert worse_than_best <= 5
+
+
+def test_a_pair_cut_next_to_an_outlier_pays_its_share_of_the_weight():
+    unary = np.zeros((3, 3))
+    edges = np.array([[0, 1], [1, 2]])
+    problem = Problem(unary, edges, np.array([4.0, 6.0]), np.zeros(3), outlier_row=0,
+                      outlier_tie=0.25)
+    assert energy(problem, np.array([0, 1, 2])) == pytest.approx(0.25 * 4.0 + 6.0)
+    assert energy(problem, np.array([1, 1, 0])) == pytest.approx(0.25 * 6.0)
+    assert energy(problem, np.array([0, 0, 0])) == 0.0
