@@ -36,6 +36,8 @@ setup(
             'pearl_play = pearl_ros.ros.play:main',
             'pearl_replay = pearl_ros.cli.replay:main',
             'pearl_score = pearl_ros.cli.score:main',
+            'pearl_video = pearl_ros.cli.video:main',
+            'pearl_render = pearl_ros.cli.render:main',
         ],
     },
 )
