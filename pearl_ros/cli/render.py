@@ -51,7 +51,8 @@ def build_parser() -> argparse.ArgumentParser:
                         help=f'labels topic (default {LABELS_TOPIC}, else the one PointCloud2 '
                         'topic)')
     parser.add_argument('--image-topic', default=None,
-                        help="image topic (default: the bag's image topic, if it has one)")
+                        help="image topic (default: the bag's image topic with messages, the "
+                        'first by name if several; none: a blank canvas)')
     parser.add_argument('--fps', type=float, default=None,
                         help='frame rate of the video (default: from the stamps, else 30)')
     parser.add_argument('--force', action='store_true', help='replace OUT.mp4 if it exists')
@@ -73,6 +74,9 @@ def pick_topics(path: Path, labels_topic: str | None, image_topic: str | None
     """The labels topic and the image topic (None: no images) of the bag ``path``."""
     with _open(path) as reader:
         types = {c.topic: c.msgtype for c in reader.connections}
+        counts = {c.topic: 0 for c in reader.connections}
+        for connection in reader.connections:
+            counts[connection.topic] += connection.msgcount
     clouds = sorted(t for t, kind in types.items() if kind == POINTCLOUD2)
     if labels_topic is None:
         if LABELS_TOPIC in clouds or len(clouds) != 1:
@@ -82,9 +86,10 @@ def pick_topics(path: Path, labels_topic: str | None, image_topic: str | None
     if types.get(labels_topic) != POINTCLOUD2:
         listing = ', '.join(f'{t} ({k})' for t, k in sorted(types.items())) or 'none'
         raise BagError(f'{path}: no PointCloud2 topic {labels_topic}; topics: {listing}')
-    images = sorted(t for t, kind in types.items() if kind == IMAGE)
+    images = sorted(t for t, kind in types.items() if kind == IMAGE and counts[t])
     if image_topic is not None and types.get(image_topic) != IMAGE:
-        raise BagError(f'{path}: no sensor_msgs/msg/Image topic {image_topic}; image topics: '
+        raise BagError(f'{path}: no sensor_msgs/msg/Image topic {image_topic}; image topics '
+                       'with messages: '
                        f'{", ".join(images) or "none"}')
     return labels_topic, image_topic or (images[0] if images else None)
 
