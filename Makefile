@@ -4,7 +4,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: venv test test-data lint demo bench bench-node clean
+.PHONY: venv test test-data lint demo demo-video bench bench-node clean
 
 # The demo's bag; extra pearl_node parameters (e.g. DEMO_ARGS='-p label_cost:=300.0'), which
 # pearl_replay gets too (as --set label_cost=300.0); pearl_play's rate (Hz, 0 = as fast as the
@@ -62,6 +62,25 @@ demo: venv
 	$(BIN)/pearl_replay $(DEMO_BAG) --output $(DEMO_OUT) --params config/pearl.yaml \
 	    $(DEMO_SET) --force && \
 	echo && $(BIN)/pearl_score $(DEMO_OUT) --summary --explain
+
+# A rendered clip (render_scene: a panning, zooming camera; one object moving in view, one crossing
+# it) through pearl_video: build/demo_clip.mp4 (the clip), build/demo_video_labels (the bag),
+# build/demo_labels.mp4 (the clip with the labels drawn) and build/demo_still.png (its frame
+# DEMO_STILL, the README's picture).
+DEMO_SEED ?= 0
+DEMO_STILL ?= 45
+demo-video: venv
+	mkdir -p build
+	$(BIN)/python -c "import cv2; from pearl_ros.tracking.render import render_scene; \
+	scene = render_scene($(DEMO_SEED), frames=60, size=(480, 640)); \
+	out = cv2.VideoWriter('build/demo_clip.mp4', cv2.VideoWriter.fourcc(*'mp4v'), 30, (640, 480)); \
+	[out.write(cv2.cvtColor(frame, cv2.COLOR_GRAY2BGR)) for frame in scene.frames]; out.release()"
+	$(BIN)/pearl_video build/demo_clip.mp4 --output-bag build/demo_video_labels \
+	    --annotated build/demo_labels.mp4 --force
+	$(BIN)/python -c "import cv2, sys; video = cv2.VideoCapture('build/demo_labels.mp4'); \
+	video.set(cv2.CAP_PROP_POS_FRAMES, $(DEMO_STILL)); ok, frame = video.read(); \
+	sys.exit(not (ok and cv2.imwrite('build/demo_still.png', frame)))"
+	@echo "wrote build/demo_labels.mp4 and build/demo_still.png (frame $(DEMO_STILL))"
 
 bench: venv
 	$(BIN)/pearl_bench hopkins155 ../shared/data/hopkins155 --frames all
