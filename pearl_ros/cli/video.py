@@ -13,7 +13,9 @@ The output bag holds, one message each per video frame in frame order, stamped `
   intrinsics known the points are pixels ``(u, v, 1)``; channels ``id_of_point``, ``u_of_point``,
   ``v_of_point``, ``velocity_x_of_point``, ``velocity_y_of_point`` (px/s);
 - ``/motion_labels``: ``sensor_msgs/msg/PointCloud2``, fields ``id``, ``u``, ``v``, ``label``
-  as the node publishes them (empty for a frame without features).
+  as the node publishes them (empty for a frame without features);
+- with ``--image-topic TOPIC``, the frames themselves (``sensor_msgs/msg/Image``, bgr8), which
+  ``pearl_render`` then draws the labels on.
 
 Parameters are ``pearl_node``'s (``--params FILE.yaml``, then ``--set NAME=VALUE``).
 """
@@ -41,6 +43,7 @@ from pearl_ros.bagio.writer import _header, _pointcloud, open_output_bag
 from pearl_ros.core.errors import InputError, PearlError, UsageParser, one_line
 from pearl_ros.pipeline import settings as pipeline_settings
 from pearl_ros.pipeline.messages import Labelled, MessagePipeline
+from pearl_ros.tracking import image as image_io
 from pearl_ros.tracking.draw import Overlay
 from pearl_ros.tracking.tracker import FeatureTracker, Tracks
 
@@ -51,7 +54,9 @@ FRAME_ID = 'camera'
 # PointCloud ids are float32: exact only up to 2**24, so ids are written modulo it (as
 # pearl_tracker publishes them); an id comes back only after 2**24 newer tracks.
 ID_MODULUS = 2**24
+IMAGE = 'sensor_msgs/msg/Image'
 MESSAGE_TYPES = encode.MessageTypes.from_typestore(TYPESTORE)
+_Image: Any = TYPESTORE.types[IMAGE]
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -66,6 +71,9 @@ def build_parser() -> argparse.ArgumentParser:
                         help='ROS 2 bag folder to create (not named *.bag)')
     parser.add_argument('--annotated', type=Path, metavar='OUT.mp4',
                         help='also write the video with the labels drawn on it (mp4v)')
+    parser.add_argument('--image-topic', metavar='TOPIC',
+                        help='also write every frame to the bag on TOPIC (sensor_msgs/Image, '
+                        'bgr8), for pearl_render to draw on; off by default (large bags)')
     parser.add_argument('--params', type=Path, metavar='YAML',
                         help="parameter file: pearl_node's ROS parameter file or name: value")
     parser.add_argument('--set', dest='assignments', action='extend', nargs='+', default=[],
@@ -162,6 +170,13 @@ def labels_of(msg: Any, pipeline: MessagePipeline) -> tuple[Any, np.ndarray, int
     return labels_msg, empty, 0
 
 
+def image_message(header: Any, image: np.ndarray) -> Any:
+    """A bgr8 ``sensor_msgs/msg/Image`` of ``image`` (H, W, 3) uint8 with ``header``."""
+    fields = image_io.array_to_image_fields(image, 'bgr8')
+    fields['data'] = np.frombuffer(fields['data'], np.uint8)  # rosbags stores uint8 arrays
+    return _Image(header=header, **fields)
+
+
 def check_outputs(args: argparse.Namespace) -> None:
     """Fail before any work when an output exists (without ``--force``) or cannot be written."""
     outputs = [args.output_bag] + ([args.annotated] if args.annotated is not None else [])
@@ -170,6 +185,8 @@ def check_outputs(args: argparse.Namespace) -> None:
             raise InputError(f'{path} exists; pass --force to replace it')
         if not path.parent.is_dir():
             raise InputError(f'output folder does not exist: {path.parent}')
+    if args.image_topic is not None and args.image_topic in ('', FEATURE_TOPIC, LABELS_TOPIC):
+        raise InputError(f'--image-topic must be a new topic name, got {args.image_topic!r}')
     if args.annotated is not None:
         if args.annotated.is_dir():
             raise InputError(f'--annotated {args.annotated} is a folder')
@@ -215,12 +232,16 @@ def run(args: argparse.Namespace, progress: ProgressBar | None = None) -> VideoS
                 video_writer(args.annotated, source.fps, source.size) as video:
             out.add_topic(FEATURE_TOPIC, POINTCLOUD)
             out.add_topic(LABELS_TOPIC, POINTCLOUD2)
+            if args.image_topic:
+                out.add_topic(args.image_topic, IMAGE)
             for stamp, image in source:
                 tracks = tracker.track(image, stamp)
                 msg, previous = features_message(stamp, tracks, previous)
                 labels_msg, labels, motions = labels_of(msg, pipeline)
                 out.write(FEATURE_TOPIC, stamp, msg)
                 out.write(LABELS_TOPIC, stamp, labels_msg)
+                if args.image_topic:
+                    out.write(args.image_topic, stamp, image_message(msg.header, image))
                 if video is not None:
                     video.write(overlay.draw(image, previous.ids, previous.uv, labels))
                 stats.features.append(len(tracks))

@@ -175,6 +175,26 @@ def test_pearl_render_draws_pearl_videos_bag(run: Run, tmp_path: Path,
     assert 600 <= width <= 640 and 440 <= height <= 480  # the features' extent
 
 
+def test_frames_go_to_the_image_topic_and_pearl_render_draws_on_them(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    scene = render_scene(1, frames=8, size=(120, 160), objects=1, crossing=0)
+    clip = write_clip(scene, tmp_path)
+    bag, out = tmp_path / 'bag', tmp_path / 'render.mp4'
+    assert main([str(clip), '--output-bag', str(bag), '--image-topic', '/camera/image']) == 0
+    images = read_topic(bag, '/camera/image')
+    decoded = video_frames(clip)
+    assert len(images) == len(decoded) == 8
+    for msg, frame in zip(images, decoded, strict=True):
+        assert (msg.encoding, msg.height, msg.width) == ('bgr8', 120, 160)
+        np.testing.assert_array_equal(np.asarray(msg.data).reshape(120, 160, 3), frame)
+    assert render_main([str(bag), '--output', str(out)]) == 0
+    assert 'the images of /camera/image' in capsys.readouterr().out
+    rendered = video_frames(out)
+    assert len(rendered) == 8
+    # The clip's texture under the dots, not a black canvas.
+    assert rendered[-1].shape == (120, 160, 3) and rendered[-1].mean() > 40
+
+
 def _error(capsys: pytest.CaptureFixture[str]) -> str:
     err = capsys.readouterr().err
     assert err.startswith('error: ') and err.count('\n') == 1, err
