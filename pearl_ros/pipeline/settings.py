@@ -40,7 +40,7 @@ _ROS_PREFIXES = ('qos_overrides.',)
 
 @dataclass(frozen=True)
 class NodeConfig:
-    """``pearl_node``'s own parameters: its input, QoS and caps.
+    """``pearl_node``'s own parameters: its input, QoS, caps and annotated images.
 
     ``pearl_replay`` applies :data:`PIPELINE_NAMES` (they change what is computed); the others
     are about live transport and mean nothing in a replay. :mod:`pearl_ros.ros.params` makes
@@ -69,6 +69,10 @@ class NodeConfig:
     diagnostics_period: float = spec(1.0, 's, period of /diagnostics and of the check for '
                                      'publishers of another type on `features`',
                                      low=0.01, high=3600.0)
+    image_topic: str = spec('', 'sensor_msgs/msg/Image topic to draw the labels on: when set, '
+                            'each image is matched to the feature message of the same stamp '
+                            'and published on image_labels (bgr8, the features as dots in '
+                            "their motion's colour); empty = off")
 
     def __post_init__(self) -> None:
         check_fields(self)

@@ -11,6 +11,11 @@ Topics (names relative to the node's namespace unless absolute)
     ``u``, ``v`` float32 (pixels), ``label`` int32 (-1 = outlier or undecided).
 ``static_features`` (out)
     The input message, same type and layout, with only the background motion's features.
+``image_labels`` (out, when the parameter ``image_topic`` names an image topic)
+    ``sensor_msgs/msg/Image``, bgr8, the size and header of the image on ``image_topic`` whose
+    stamp is that of a feature message: its features drawn as dots in their motion's colour
+    (:class:`~pearl_ros.tracking.draw.Overlay`). Images and labels wait for each other in a
+    small buffer (:class:`StampMatcher`); one that finds no partner is dropped and counted.
 ``/diagnostics`` (out)
     ``diagnostic_msgs/msg/DiagnosticArray`` every ``diagnostics_period`` s.
 
@@ -20,6 +25,8 @@ Every input message that can be read gets exactly one ``motion_labels`` and one
 ``static_features`` with its header. One that cannot (see :meth:`PearlNode._on_features`) gets
 none: it is counted in the diagnostics and answered by a throttled warning. The per-message work
 is :class:`~pearl_ros.pipeline.messages.MessagePipeline`, the code ``pearl_replay`` runs.
+Drawing never delays ``motion_labels``: a frame's labels are published before its image is
+drawn, in the same callback when the image came first.
 
 SIGINT or SIGTERM stops the node between two callbacks, with exit status 0.
 """
@@ -29,6 +36,7 @@ from __future__ import annotations
 import signal
 import sys
 import time
+from collections import Counter
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass, field
@@ -40,25 +48,31 @@ import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.event_handler import SubscriptionEventCallbacks
-from rclpy.exceptions import ParameterException
+from rclpy.exceptions import NameValidationException, ParameterException
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from rclpy.signals import SignalHandlerOptions
 from rclpy.utilities import remove_ros_args
-from sensor_msgs.msg import PointCloud2
+from sensor_msgs.msg import Image, PointCloud2
 from std_msgs.msg import Header
 from std_srvs.srv import Trigger
 
+from pearl_ros.bagio import decode
 from pearl_ros.core.errors import InputError, one_line
 from pearl_ros.online.config import unknown_parameter
 from pearl_ros.pipeline import settings as pipeline_settings
-from pearl_ros.pipeline.messages import MessagePipeline, Skipped
+from pearl_ros.pipeline.messages import Labelled, MessagePipeline, Skipped
 from pearl_ros.ros import convert, params
+from pearl_ros.tracking import image as image_io
+from pearl_ros.tracking.draw import Overlay, to_bgr
 
 WARN_PERIOD_S = 5.0  # at most one warning of each kind this often
 OUTPUT_DEPTH = 10  # messages, keep-last depth of the (reliable) outputs
+# Images, and label results, waiting for their partner of the same stamp (each kind): a tracker
+# answers an image within a frame or two, so 30 outlasts any normal delay.
+MATCH_DEPTH = 30
 
 
 def input_qos(kind: str, depth: int) -> QoSProfile:
@@ -88,6 +102,9 @@ class Stats:
     reset_requests: int = 0  # ~/reset calls
     errors: int = 0  # unexpected exceptions (a bug), the node carried on
     mismatched_publishers: int = 0  # publishers of another type on `features`, last check
+    images: int = 0  # received on image_topic
+    annotated: int = 0  # image_labels published
+    bad_images: int = 0  # unsupported encoding, or step / data that do not fit
     incompatible_qos: int = 0  # publishers whose QoS the subscription cannot match
     motions: int = 0  # last segmented frame
     features: int = 0
@@ -95,7 +112,61 @@ class Stats:
     period_start: float = field(default_factory=time.monotonic)
     period_received: int = 0
     period_problems: int = 0
+    period_bad_images: int = 0
     period_latency_s: list[float] = field(default_factory=list)
+
+
+class StampMatcher:
+    """Pairs images with label results of the same stamp, whichever comes first.
+
+    Each stream comes in stamp order, so when a pair is made at stamp ``s`` whatever waits with
+    an earlier stamp will never find its partner (the tracker skipped that image, or the node
+    that message): it is dropped. At most ``depth`` of each kind wait; beyond, the oldest is
+    dropped. :attr:`dropped` counts the drops by kind, :attr:`overflows` those of a full buffer
+    (stamps that never match, as when a tracker stamps its features with its own clock).
+
+    Parameters
+    ----------
+    depth : int
+        Items of each kind that may wait.
+    """
+
+    KINDS = ('image', 'labels')
+
+    def __init__(self, depth: int = MATCH_DEPTH) -> None:
+        self.depth = depth
+        self._waiting: dict[str, dict[int, Any]] = {kind: {} for kind in self.KINDS}
+        self.dropped: Counter[str] = Counter()
+        self.overflows = 0
+
+    def add(self, kind: str, stamp_ns: int, item: Any) -> tuple[Any, Any] | None:
+        """Offer an ``item`` of ``kind`` (``'image'`` or ``'labels'``); the pair
+        ``(image, labels)`` when its partner was waiting, else None (it waits)."""
+        other = self.KINDS[1 - self.KINDS.index(kind)]
+        partner = self._waiting[other].pop(stamp_ns, None)
+        if partner is None:
+            mine = self._waiting[kind]
+            if mine.pop(stamp_ns, None) is not None:  # a repeated stamp: the newer one waits
+                self.dropped[kind] += 1
+            mine[stamp_ns] = item
+            if len(mine) > self.depth:
+                del mine[next(iter(mine))]  # dicts keep arrival order: the oldest
+                self.dropped[kind] += 1
+                self.overflows += 1
+            return None
+        self.discard(lambda stamp: stamp < stamp_ns)
+        return (item, partner) if kind == 'image' else (partner, item)
+
+    def discard(self, which: Any) -> None:
+        """Drop (and count) what waits with a stamp for which ``which(stamp)`` is true."""
+        for kind, waiting in self._waiting.items():
+            for stamp in [stamp for stamp in waiting if which(stamp)]:
+                del waiting[stamp]
+                self.dropped[kind] += 1
+
+    def waiting(self, kind: str) -> int:
+        """How many items of ``kind`` wait."""
+        return len(self._waiting[kind])
 
 
 class PearlNode(Node):
@@ -145,6 +216,9 @@ class PearlNode(Node):
         self._static_pub = self.create_publisher(self._msg_class, 'static_features', output_qos)
         self._diagnostics_pub = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
         self._reset_srv = self.create_service(Trigger, '~/reset', self._on_reset)
+        self._overlay: Overlay | None = None
+        if node.image_topic:
+            self._subscribe_images(node)
         self.add_pre_set_parameters_callback(_ints_as_floats)
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self._timer = self.create_timer(node.diagnostics_period, self._on_timer)
@@ -152,6 +226,23 @@ class PearlNode(Node):
             f'segmenting {node.msg_type} on {self._sub.topic_name} '
             f'(layout {node.layout}, qos {node.qos} depth {node.qos_depth})'
         )
+
+    def _subscribe_images(self, node: pipeline_settings.NodeConfig) -> None:
+        """The ``image_topic`` subscription and ``image_labels``; InputError for a bad name."""
+        try:
+            self._image_sub = self.create_subscription(
+                Image, node.image_topic, self._on_image, input_qos(node.qos, node.qos_depth))
+        except NameValidationException as err:
+            self.destroy_node()
+            reason = str(err).splitlines()[0].rstrip(':').split(': ', 1)[-1]
+            raise InputError(f'image_topic {node.image_topic!r} is not a valid topic name: '
+                             f'{reason}') from err
+        output_qos = QoSProfile(depth=OUTPUT_DEPTH, reliability=ReliabilityPolicy.RELIABLE)
+        self._image_pub = self.create_publisher(Image, 'image_labels', output_qos)
+        self._overlay = Overlay()
+        self._matcher = StampMatcher(MATCH_DEPTH)
+        self.get_logger().info(f'drawing labels on {self._image_sub.topic_name} into '
+                               f'{self._image_pub.topic_name}')
 
     @property
     def settings(self) -> pipeline_settings.Settings:
@@ -201,6 +292,68 @@ class PearlNode(Node):
         stats.features = int(out.ids.size)
         stats.segmented = int(out.segmented.sum())
         stats.period_latency_s.append(time.perf_counter() - start)
+        if self._overlay is not None:  # after motion_labels is out: drawing delays nothing
+            self._offer_labels(out)
+
+    # ------------------------------------------------------------------- image_labels
+
+    def _on_image(self, msg: Image) -> None:
+        """Keep an image until the labels of its stamp come, or draw it if they came first.
+
+        An encoding :mod:`pearl_ros.tracking.image` does not read is counted and warned about
+        (throttled), and the image dropped.
+        """
+        self.stats.images += 1
+        encoding = str(msg.encoding)
+        if encoding not in image_io.ENCODINGS:
+            self._bad_image(f'image encoding {encoding!r} on {self._image_sub.topic_name} not '
+                            f'supported (supported: {", ".join(image_io.ENCODINGS)}): no '
+                            'image_labels for it')
+            return
+        self._pair('image', decode.stamp_ns(msg.header), msg)
+
+    def _offer_labels(self, out: Labelled) -> None:
+        """Offer a frame's labels to the matcher (a stamp gone back: forget colours, trails and
+        what waited for a later stamp)."""
+        assert self._overlay is not None
+        if out.result.reset:
+            self._overlay.reset()
+            self._matcher.discard(lambda stamp: stamp > out.stamp_ns)
+        self._pair('labels', out.stamp_ns, (out.ids, out.uv, out.labels))
+
+    def _pair(self, kind: str, stamp_ns: int, item: Any) -> None:
+        overflows = self._matcher.overflows
+        pair = self._matcher.add(kind, stamp_ns, item)
+        if self._matcher.overflows > overflows:
+            self._warn('unmatched', f'{self._matcher.depth} {kind} messages wait for a partner '
+                       f'of the same stamp (is {self._image_sub.topic_name} the image the '
+                       'features were tracked in?): dropping the oldest')
+        if pair is not None:
+            self._draw(*pair)
+
+    def _draw(self, msg: Image, labels: tuple[np.ndarray, np.ndarray, np.ndarray]) -> None:
+        """Publish ``msg`` with the labels drawn on it, on ``image_labels``, with its header."""
+        assert self._overlay is not None
+        try:
+            bgr = to_bgr(image_io.image_to_array(msg), str(msg.encoding))
+            drawn = self._overlay.draw(bgr, *labels)
+            out = Image(header=msg.header, **image_io.array_to_image_fields(drawn, 'bgr8'))
+        except InputError as err:
+            self._bad_image(f'malformed image on {self._image_sub.topic_name}, no image_labels '
+                            f'for it: {one_line(err)}')
+            return
+        except Exception as err:  # a bug must not take the node down with it
+            self.stats.errors += 1
+            self._warn('error', f'internal error, image dropped: {type(err).__name__}: {err}')
+            return
+        with self._quiet_after_shutdown():
+            self._image_pub.publish(out)
+        self.stats.annotated += 1
+
+    def _bad_image(self, text: str) -> None:
+        self.stats.bad_images += 1
+        self.stats.period_bad_images += 1
+        self._warn('image', text)
 
     @contextmanager
     def _quiet_after_shutdown(self) -> Iterator[None]:
@@ -295,6 +448,9 @@ class PearlNode(Node):
             problems.append(f'{stats.incompatible_qos} publisher(s) with incompatible QoS')
         if stats.period_problems:
             problems.append(f'{stats.period_problems} message(s) malformed or skipped')
+        if stats.period_bad_images:
+            problems.append(f'{stats.period_bad_images} image(s) of an unsupported encoding '
+                            'or malformed')
         if not stats.period_received:
             problems.append('no input')
         values = {
@@ -315,6 +471,7 @@ class PearlNode(Node):
             'internal errors': stats.errors,
             'publishers of another type': stats.mismatched_publishers,
             'publishers with incompatible QoS': stats.incompatible_qos,
+            **self._image_values(),
         }
         status = DiagnosticStatus(
             level=DiagnosticStatus.WARN if problems else DiagnosticStatus.OK,
@@ -324,8 +481,24 @@ class PearlNode(Node):
             values=[KeyValue(key=key, value=str(value)) for key, value in values.items()],
         )
         stats.period_start, stats.period_received, stats.period_problems = now, 0, 0
+        stats.period_bad_images = 0
         stats.period_latency_s = []
         return DiagnosticArray(header=_header(self), status=[status])
+
+    def _image_values(self) -> dict[str, Any]:
+        """The diagnostics of ``image_labels`` (none when ``image_topic`` is empty)."""
+        if self._overlay is None:
+            return {}
+        matcher = self._matcher
+        return {
+            'images received': self.stats.images,
+            'annotated images': self.stats.annotated,
+            'images refused (encoding, malformed)': self.stats.bad_images,
+            'images without labels (dropped)': matcher.dropped['image'],
+            'labels without image (dropped)': matcher.dropped['labels'],
+            'images waiting': matcher.waiting('image'),
+            'labels waiting': matcher.waiting('labels'),
+        }
 
     def _warn(self, kind: str, text: str) -> None:
         """A warning, at most one of each ``kind`` per :data:`WARN_PERIOD_S`."""
@@ -370,6 +543,8 @@ topics (relative to the node's namespace; remap `features` to the tracker's topi
   motion_labels (out)    sensor_msgs/msg/PointCloud2, fields id, u, v, label (-1 = outlier or
                          undecided), one point per input feature in input order
   static_features (out)  the input message with the background motion's features only
+  image_labels (out)     sensor_msgs/msg/Image, bgr8: the image of parameter image_topic (when
+                         set) with its features coloured by motion, the image's header
   /diagnostics (out)     diagnostic_msgs/msg/DiagnosticArray every diagnostics_period s
 service:
   ~/reset                std_srvs/srv/Trigger: empty the window

@@ -6,8 +6,8 @@ Three groups, all declared with a description and a range (``ParameterDescriptor
   :class:`~pearl_ros.online.config.OnlineConfig`, from
   :func:`~pearl_ros.core.config.parameter_specs` (the defaults are written once, there);
 - the node's own parameters, :class:`~pearl_ros.pipeline.settings.NodeConfig` (input type,
-  layout, QoS, caps...), in the same form. Those that shape a subscription are read-only after
-  start-up.
+  layout, QoS, caps, ``image_topic``...), in the same form. Those that shape a subscription
+  are read-only after start-up.
 
 Values are turned into settings by :func:`pearl_ros.pipeline.settings.build`, as
 ``pearl_replay`` and ``pearl_bench`` turn theirs.
@@ -32,7 +32,7 @@ from pearl_ros.pipeline.settings import NODE_SPECS
 
 _INT64 = 2**63 - 1
 
-READ_ONLY = frozenset({'msg_type', 'qos', 'qos_depth', 'diagnostics_period'})
+READ_ONLY = frozenset({'msg_type', 'qos', 'qos_depth', 'diagnostics_period', 'image_topic'})
 CONFIG_SPECS: tuple[ParameterSpec, ...] = parameter_specs(PearlConfig) + parameter_specs(
     OnlineConfig)
 ALL_SPECS: tuple[ParameterSpec, ...] = CONFIG_SPECS + NODE_SPECS
@@ -182,6 +182,8 @@ def _yaml_value(value: Any) -> str:
         # YAML 1.1 reads 1e-06 as a string: give the mantissa its point (1.0e-06).
         mantissa, e, exponent = text.partition('e')
         return (mantissa if '.' in mantissa else mantissa + '.0') + (e + exponent if e else '')
+    if value == '':
+        return "''"  # YAML reads nothing after the colon as null
     return str(value)
 
 

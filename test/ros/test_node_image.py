@@ -1,0 +1,323 @@
+"""``image_labels``: pearl_node draws its labels on the images of ``image_topic``, live, on a real
+executor; the image pairing buffer; and ``launch/camera.launch.py``."""
+
+from __future__ import annotations
+
+import ast
+from collections import Counter
+from typing import Any
+
+import cv2
+import numpy as np
+import pytest
+from diagnostic_msgs.msg import DiagnosticArray
+from rcl_interfaces.msg import Log
+from rclpy.parameter import Parameter
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from sensor_msgs.msg import Image, PointCloud, PointCloud2
+
+from pearl_ros.bagio import decode
+from pearl_ros.core.errors import InputError
+from pearl_ros.ros.node import PearlNode, StampMatcher
+from pearl_ros.ros.tracker_node import TrackerNode, features_message
+from pearl_ros.tracking.draw import GREY, PALETTE, Overlay
+from pearl_ros.tracking.image import array_to_image_fields
+from pearl_ros.tracking.render import render_scene
+from pearl_ros.tracking.tracker import FeatureTracker, TrackerConfig
+
+from ros_harness import RELIABLE, REPO, Ros, header
+
+SCENE = render_scene(5, frames=12, size=(240, 320))
+STAMPS = [2_000_000_000 + k * 33_000_000 for k in range(len(SCENE.frames))]
+MAX_FEATURES = 150  # the tracker's
+
+
+def tinted_rgb(gray: np.ndarray) -> np.ndarray:
+    """An rgb8 image whose channels differ, so that a swapped channel order shows."""
+    return np.stack([gray, gray // 2, 255 - gray], axis=2).astype(np.uint8)
+
+
+def image_msg(k: int, encoding: str = 'mono8') -> Image:
+    pixels = SCENE.frames[k] if encoding == 'mono8' else tinted_rgb(SCENE.frames[k])
+    return Image(header=header(STAMPS[k]), **array_to_image_fields(pixels, encoding))
+
+
+def offline_features(k_last: int) -> list[PointCloud]:
+    """The tracker's messages for frames 0..k_last, tracked here (no node)."""
+    tracker = FeatureTracker(TrackerConfig(max_features=MAX_FEATURES))
+    return [features_message(header(STAMPS[k]), tracker.track(SCENE.frames[k], STAMPS[k]))
+            for k in range(k_last + 1)]
+
+
+class Viewer:
+    """A camera driver and a user of pearl_node's outputs, noting when each was published."""
+
+    def __init__(self, ros: Ros, features: bool = False) -> None:
+        self.ros = ros
+        self.node = ros.node('viewer')
+        self.images = self.node.create_publisher(Image, 'image', RELIABLE)
+        self.features = (self.node.create_publisher(PointCloud, 'features', RELIABLE)
+                         if features else None)
+        self.labels: dict[int, tuple[PointCloud2, int]] = {}  # stamp -> (msg, published ns)
+        self.drawn: dict[int, tuple[Image, int]] = {}
+        self.diagnostics: list[dict[str, str]] = []
+        self.logs: list[Log] = []
+        self.node.create_subscription(PointCloud2, 'motion_labels', self._on_labels, RELIABLE)
+        self.node.create_subscription(Image, 'image_labels', self._on_drawn, RELIABLE)
+        self.node.create_subscription(DiagnosticArray, '/diagnostics', self._on_diagnostics, 50)
+        rosout = QoSProfile(depth=200, reliability=ReliabilityPolicy.RELIABLE,
+                            durability=DurabilityPolicy.TRANSIENT_LOCAL)
+        self.node.create_subscription(Log, '/rosout', self._on_log, rosout)
+
+    # The publisher's source timestamp says which message was published first, whatever order
+    # the executor hands them to us in.
+    def _on_labels(self, msg: PointCloud2, info: Any) -> None:
+        self.labels[decode.stamp_ns(msg.header)] = (msg, info['source_timestamp'])
+
+    def _on_drawn(self, msg: Image, info: Any) -> None:
+        self.drawn[decode.stamp_ns(msg.header)] = (msg, info['source_timestamp'])
+
+    def _on_diagnostics(self, msg: DiagnosticArray) -> None:
+        for status in msg.status:
+            if status.hardware_id.startswith(self.ros.ns):
+                self.diagnostics.append({kv.key: kv.value for kv in status.values}
+                                        | {'_message': status.message})
+
+    def _on_log(self, msg: Log) -> None:
+        if msg.name.startswith(self.ros.ns.strip('/') + '.') and msg.level == Log.WARN:
+            self.logs.append(msg)
+
+    def wait_for(self, node: PearlNode, images: int = 1) -> None:
+        ns = self.ros.ns
+        assert self.ros.spin_until(
+            lambda: self.images.get_subscription_count() >= images
+            and (self.features is None or self.features.get_subscription_count() > 0)
+            and self.node.count_publishers(f'{ns}/image_labels') > 0
+            and self.node.count_publishers(f'{ns}/motion_labels') > 0
+            and node.count_subscribers(f'{ns}/image_labels') > 0
+            and node.count_subscribers(f'{ns}/motion_labels') > 0, 10.0)
+
+    def wait_drawn(self, k: int, timeout: float = 10.0) -> Image:
+        assert self.ros.spin_until(lambda: STAMPS[k] in self.drawn, timeout), (
+            f'no image_labels for frame {k}')
+        return self.drawn[STAMPS[k]][0]
+
+    def wait_labels(self, k: int, timeout: float = 10.0) -> None:
+        assert self.ros.spin_until(lambda: STAMPS[k] in self.labels, timeout), (
+            f'no motion_labels for frame {k}')
+
+    def diagnostics_where(self, key: str, value: str) -> dict[str, str]:
+        def found() -> dict[str, str] | None:
+            return next((d for d in reversed(self.diagnostics) if d.get(key) == value), None)
+        assert self.ros.spin_until(lambda: found() is not None, 5.0), self.diagnostics[-1:]
+        result = found()
+        assert result is not None
+        return result
+
+
+def drawn_array(msg: Image) -> np.ndarray:
+    assert msg.encoding == 'bgr8'
+    return np.frombuffer(bytes(msg.data), np.uint8).reshape(msg.height, msg.width, 3)
+
+
+def check_drawing(viewer: Viewer, frames: range, background: Any) -> None:
+    """Each frame's image_labels: the input's header and size, published after its
+    motion_labels, the input under the drawing, each motion in one colour of its own."""
+    colour_of: dict[int, Counter[tuple[int, ...]]] = {}
+    labelled = 0
+    for k in frames:
+        msg, drawn_at = viewer.drawn[STAMPS[k]]
+        labels_msg, labelled_at = viewer.labels[STAMPS[k]]
+        assert labelled_at < drawn_at, f'frame {k}: image_labels published before motion_labels'
+        assert (msg.height, msg.width) == SCENE.frames[k].shape
+        assert msg.header.frame_id == 'cam0'
+        out = drawn_array(msg)
+        assert np.mean(np.all(out == background(k), axis=2)) > 0.5  # the camera image beneath
+        columns = decode.decode_fields(labels_msg, ('id', 'u', 'v', 'label'))
+        labels = columns['label'].astype(int)
+        uv = np.column_stack([columns['u'], columns['v']])
+        # The corner holds the motion count: features under it are hidden.
+        legend = Overlay()
+        legend.draw(out, [], np.zeros((0, 2)), [])
+        x1, y1 = legend.legend_box[2] + 40, legend.legend_box[3] + 4
+        for (u, v), label in zip(np.rint(uv).astype(int), labels, strict=True):
+            if u <= x1 and v <= y1:
+                continue
+            pixel = tuple(int(c) for c in out[v, u])
+            if label >= 0:
+                labelled += 1
+                assert pixel in PALETTE, f'frame {k}: motion {label} drawn {pixel}'
+                colour_of.setdefault(int(label), Counter())[pixel] += 1
+            else:
+                assert pixel == GREY or pixel in PALETTE  # a motion's dot may cover it
+    assert labelled > 100 and len(colour_of) >= 2
+    # Dots overlap where motions meet: a motion's colour is the one nearly all its dots have,
+    # the same in every frame, and no other motion's.
+    main = {}
+    for label, colours in colour_of.items():
+        colour, count = colours.most_common(1)[0]
+        assert count >= 0.9 * colours.total(), f'motion {label} in several colours: {colours}'
+        main[label] = colour
+    assert len(set(main.values())) == len(main)
+
+
+def test_the_camera_chain_draws_every_frame_after_publishing_its_labels(ros: Ros) -> None:
+    # camera -> pearl_tracker -> pearl_node, the image going to both: images come first here.
+    tracker = ros.add(TrackerNode(context=ros.context, namespace=ros.ns, parameter_overrides=[
+        Parameter('max_features', value=MAX_FEATURES), Parameter('qos', value='reliable'),
+        Parameter('qos_depth', value=5)]))
+    node = ros.pearl(image_topic='image', budget_ms=0.0)
+    viewer = Viewer(ros)
+    viewer.wait_for(node, images=2)
+    assert ros.spin_until(lambda: tracker.count_subscribers(f'{ros.ns}/features') > 0)
+    for k in range(len(STAMPS)):
+        viewer.images.publish(image_msg(k))
+        viewer.wait_drawn(k)
+        viewer.wait_labels(k)
+    assert sorted(viewer.drawn) == STAMPS
+    check_drawing(viewer, range(len(STAMPS)),
+                  lambda k: np.repeat(SCENE.frames[k][:, :, None], 3, axis=2))
+    values = viewer.diagnostics_where('annotated images', str(len(STAMPS)))
+    assert values['images without labels (dropped)'] == '0'
+    assert values['labels without image (dropped)'] == '0'
+
+
+def test_labels_that_come_before_their_image_wait_for_it(ros: Ros) -> None:
+    node = ros.pearl(image_topic='image', budget_ms=0.0)
+    viewer = Viewer(ros, features=True)
+    assert viewer.features is not None
+    viewer.wait_for(node)
+    messages = offline_features(len(STAMPS) - 1)
+    for k, features in enumerate(messages):
+        if k % 2:  # odd frames: labels first, then the image
+            viewer.features.publish(features)
+            viewer.wait_labels(k)
+            assert STAMPS[k] not in viewer.drawn
+            viewer.images.publish(image_msg(k, 'rgb8'))
+        else:  # even frames: the image waits for the labels
+            viewer.images.publish(image_msg(k, 'rgb8'))
+            assert ros.spin_until(lambda k=k: node.stats.images == k + 1)
+            viewer.features.publish(features)
+        viewer.wait_drawn(k)
+    check_drawing(viewer, range(len(STAMPS)),
+                  lambda k: cv2.cvtColor(tinted_rgb(SCENE.frames[k]), cv2.COLOR_RGB2BGR))
+
+
+def test_images_and_labels_without_a_partner_are_dropped_and_counted(ros: Ros) -> None:
+    node = ros.pearl(image_topic='image', budget_ms=0.0)
+    viewer = Viewer(ros, features=True)
+    assert viewer.features is not None
+    viewer.wait_for(node)
+    messages = offline_features(4)
+    viewer.images.publish(image_msg(0))  # no features for it: the tracker skipped it
+    viewer.features.publish(messages[1])  # no image for it
+    viewer.wait_labels(1)
+    assert ros.spin_until(lambda: node.stats.images == 1)
+    viewer.images.publish(image_msg(2))
+    viewer.features.publish(messages[2])
+    viewer.wait_drawn(2)
+    values = viewer.diagnostics_where('annotated images', '1')
+    assert values['images without labels (dropped)'] == '1'
+    assert values['labels without image (dropped)'] == '1'
+    assert values['images waiting'] == values['labels waiting'] == '0'
+    assert sorted(viewer.drawn) == [STAMPS[2]]
+
+
+def test_a_bad_image_is_warned_about_and_counted_and_the_node_goes_on(ros: Ros) -> None:
+    node = ros.pearl(image_topic='image', budget_ms=0.0)
+    viewer = Viewer(ros, features=True)
+    assert viewer.features is not None
+    viewer.wait_for(node)
+    messages = offline_features(3)
+    for k in (0, 1):  # an encoding we do not read, twice: one warning
+        viewer.images.publish(Image(header=header(STAMPS[k]), height=240, width=320,
+                                    encoding='32FC1', step=320 * 4, data=bytes(240 * 320 * 4)))
+        viewer.features.publish(messages[k])
+        viewer.wait_labels(k)
+    short = image_msg(2)
+    short.data = bytes(short.data)[:1000]  # a supported encoding, too little data
+    viewer.images.publish(short)
+    viewer.features.publish(messages[2])
+    viewer.wait_labels(2)
+    viewer.images.publish(image_msg(3))
+    viewer.features.publish(messages[3])
+    viewer.wait_drawn(3)
+    values = viewer.diagnostics_where('images refused (encoding, malformed)', '3')
+    assert values['annotated images'] == '1'
+    assert ros.spin_until(lambda: viewer.logs, 5.0)
+    warnings = [m.msg for m in viewer.logs if "'32FC1'" in m.msg]
+    assert len(warnings) == 1 and '\n' not in warnings[0]
+    assert sorted(viewer.drawn) == [STAMPS[3]] and sorted(viewer.labels) == STAMPS[:4]
+
+
+def test_without_image_topic_there_is_no_image_subscription_nor_output(ros: Ros) -> None:
+    node = ros.pearl()
+    assert node.get_parameter('image_topic').value == ''
+    assert not any(topic.endswith('image_labels') for topic, _ in
+                   node.get_publisher_names_and_types_by_node(node.get_name(), ros.ns))
+    assert 'annotated images' not in {kv.key for kv in node.diagnostics().status[0].values}
+
+
+def test_image_topic_is_read_only_and_a_bad_name_is_refused(ros: Ros) -> None:
+    node = ros.pearl(image_topic='/camera/image_raw')
+    result = node.set_parameters([Parameter('image_topic', value='other')])[0]
+    assert not result.successful and 'read-only' in result.reason
+    subscriptions = node.get_subscriber_names_and_types_by_node(node.get_name(), ros.ns)
+    assert ('/camera/image_raw', ['sensor_msgs/msg/Image']) in subscriptions
+    with pytest.raises(InputError, match=r"^image_topic 'bad topic!' is not a valid topic name"):
+        ros.pearl(image_topic='bad topic!')
+
+
+def test_the_matcher_pairs_by_stamp_whichever_comes_first_and_bounds_what_waits() -> None:
+    matcher = StampMatcher(depth=3)
+    assert matcher.add('image', 10, 'i10') is None
+    assert matcher.add('labels', 10, 'l10') == ('i10', 'l10')
+    assert matcher.add('labels', 20, 'l20') is None
+    assert matcher.add('image', 20, 'i20') == ('i20', 'l20')  # (image, labels) either way
+    for stamp in (30, 40, 50, 60):  # images whose labels never come
+        assert matcher.add('image', stamp, stamp) is None
+    assert matcher.waiting('image') == 3 and matcher.dropped['image'] == 1
+    assert matcher.overflows == 1
+    # A pair at 60 ends the wait of everything older.
+    assert matcher.add('labels', 45, 'l45') is None
+    assert matcher.add('labels', 60, 'l60') == (60, 'l60')
+    assert matcher.waiting('image') == matcher.waiting('labels') == 0
+    assert matcher.dropped == {'image': 3, 'labels': 1}
+
+
+def test_the_camera_launch_file_chains_the_tracker_and_the_node_on_one_image() -> None:
+    # launch and launch_ros are not on PyPI: check what the file says, not what it does.
+    tree = ast.parse((REPO / 'launch' / 'camera.launch.py').read_text())
+    functions = {n.name for n in ast.walk(tree) if isinstance(n, ast.FunctionDef)}
+    assert 'generate_launch_description' in functions
+    arguments = {n.args[0].value for n in ast.walk(tree) if isinstance(n, ast.Call)
+                 and getattr(n.func, 'id', '') == 'DeclareLaunchArgument'}
+    assert {'image', 'camera_info', 'namespace', 'params_file'} <= arguments
+    nodes = {}
+    for call in ast.walk(tree):
+        if isinstance(call, ast.Call) and getattr(call.func, 'id', '') == 'Node':
+            keywords = {k.arg: k.value for k in call.keywords}
+            nodes[ast.literal_eval(keywords['executable'])] = keywords
+    assert set(nodes) == {'pearl_tracker', 'pearl_node'}
+    for keywords in nodes.values():
+        assert {'package', 'namespace', 'parameters', 'remappings'} <= set(keywords)
+        assert ast.literal_eval(keywords['package']) == 'pearl_ros'
+        assert ast.unparse(keywords['namespace']) == "LaunchConfiguration('namespace')"
+
+    def remaps(executable: str) -> dict[str, str]:
+        """Remapped name -> the launch argument (or text) it goes to."""
+        out = {}
+        for pair in nodes[executable]['remappings'].elts:
+            source, target = pair.elts
+            out[ast.literal_eval(source)] = ast.unparse(target)
+        return out
+    tracker, pearl = remaps('pearl_tracker'), remaps('pearl_node')
+    assert tracker == {'image': "LaunchConfiguration('image')",
+                       'camera_info': "LaunchConfiguration('camera_info')"}
+    # the tracker's output is the node's input: both keep the relative name `features`
+    assert 'features' not in tracker and 'features' not in pearl
+    # pearl_node draws on the camera's image: image_topic is the image launch argument
+    parameters = ast.unparse(nodes['pearl_node']['parameters'])
+    assert "{'image_topic': LaunchConfiguration('image')}" in parameters
+    assert "LaunchConfiguration('params_file')" in parameters
+    assert REPO.joinpath('setup.py').read_text().count("glob('launch/*.launch.py')") == 1
