@@ -136,18 +136,33 @@ class Overlay:
         finite = np.isfinite(uv).all(axis=1)
         self._update_trails(ids[finite], uv[finite])
         out = image.copy()
-        colours = [self.colour(int(m)) for m in labels]
-        for i in np.flatnonzero(finite):
-            points = np.round(np.clip(self._trails[int(ids[i])], -_FAR, _FAR)).astype(np.int32)
-            if len(points) > 1:
-                cv2.polylines(out, [points.reshape(-1, 1, 2)], False, colours[i], 1, cv2.LINE_8)
-        grey_first = np.flatnonzero(finite)[np.argsort(labels[finite] >= 0, kind='stable')]
-        for i in grey_first:
-            centre = np.round(np.clip(uv[i], -_FAR, _FAR)).astype(int)
-            cv2.circle(out, (int(centre[0]), int(centre[1])), self.radius, colours[i], -1,
-                       cv2.LINE_8)
+        shown = np.flatnonzero(finite)
+        colours = {int(m): self.colour(int(m)) for m in np.unique(labels[shown])}
+        self._draw_trails(out, ids[shown], labels[shown], colours)
+        centres = np.round(np.clip(uv[shown], -_FAR, _FAR)).astype(np.int64).tolist()
+        grey_first = np.argsort(labels[shown] >= 0, kind='stable')  # motions drawn on top
+        for k, label in zip(grey_first.tolist(), labels[shown][grey_first].tolist(),
+                            strict=True):
+            cv2.circle(out, tuple(centres[k]), self.radius, colours[label], -1, cv2.LINE_8)
         self._draw_count(out, present.size)
         return out
+
+    def _draw_trails(self, out: np.ndarray, ids: np.ndarray, labels: np.ndarray,
+                     colours: dict[int, tuple[int, int, int]]) -> None:
+        """Each feature's trail as a polyline in its motion's colour, one call per colour."""
+        trails = [self._trails[key] for key in ids.tolist()]
+        lengths = np.array([len(trail) for trail in trails], dtype=np.int64)
+        long = lengths > 1
+        if not long.any():
+            return
+        points = np.array([p for trail, keep in zip(trails, long, strict=True) if keep
+                           for p in trail], dtype=np.float64)
+        points = np.round(np.clip(points, -_FAR, _FAR)).astype(np.int32)
+        pieces = np.split(points, np.cumsum(lengths[long])[:-1])
+        for label in np.unique(labels[long]).tolist():
+            lines = [piece.reshape(-1, 1, 2) for piece, mine
+                     in zip(pieces, labels[long] == label, strict=True) if mine]
+            cv2.polylines(out, lines, False, colours[label], 1, cv2.LINE_8)
 
     def _assign_colours(self, present: list[int]) -> None:
         """Give each motion number of this frame a palette slot (class docstring)."""
