@@ -223,6 +223,30 @@ def test_images_and_labels_without_a_partner_are_dropped_and_counted(ros: Ros) -
     assert sorted(viewer.drawn) == [STAMPS[2]]
 
 
+def test_a_stamp_gone_back_starts_the_drawing_afresh(ros: Ros) -> None:
+    # A bag replayed in a loop: labels at an earlier stamp empty the window; the image of that
+    # stamp is still drawn, and what waited for a later stamp is dropped.
+    node = ros.pearl(image_topic='image', budget_ms=0.0)
+    viewer = Viewer(ros, features=True)
+    assert viewer.features is not None
+    viewer.wait_for(node)
+    messages = offline_features(3)
+    for k in (0, 1, 2):
+        viewer.images.publish(image_msg(k))
+        viewer.features.publish(messages[k])
+        viewer.wait_drawn(k)
+    viewer.images.publish(image_msg(3))  # its labels never come: the loop restarts
+    viewer.drawn.clear()
+    viewer.images.publish(image_msg(0))
+    assert ros.spin_until(lambda: node.stats.images == 5)
+    viewer.features.publish(messages[0])
+    viewer.wait_drawn(0)
+    values = viewer.diagnostics_where('annotated images', '4')
+    assert values['window resets (stamp went back)'] == '1'
+    assert values['images without labels (dropped)'] == '1'
+    assert values['images waiting'] == '0'
+
+
 def test_a_bad_image_is_warned_about_and_counted_and_the_node_goes_on(ros: Ros) -> None:
     node = ros.pearl(image_topic='image', budget_ms=0.0)
     viewer = Viewer(ros, features=True)
