@@ -242,7 +242,7 @@ def open_feature_stream(
         damage met while iterating raises too; a message that cannot be deserialised does not,
         it comes out as a :class:`FeatureMessage` with ``error`` set.
     """
-    with _open(path) as reader:
+    with open_bag(path) as reader:
         yield FeatureStream(reader, Path(path), topic, tuple(copy_topics))
 
 
@@ -311,13 +311,13 @@ def topics(path: str | Path) -> dict[str, str]:
 
     A topic recorded with several types maps to their names joined by ``'|'``.
     """
-    with _open(path) as reader:
+    with open_bag(path) as reader:
         return _topic_types(reader)
 
 
 def topic_counts(path: str | Path) -> dict[str, tuple[str, int]]:
     """Topic -> (message type as :func:`topics` gives it, message count) of the bag at ``path``."""
-    with _open(path) as reader:
+    with open_bag(path) as reader:
         counts: dict[str, int] = {}
         for connection in reader.connections:
             counts[connection.topic] = counts.get(connection.topic, 0) + int(connection.msgcount)
@@ -353,7 +353,7 @@ def read_feature_frames(
     """
     layout = decode.check_layout(layout)
     camera_id = decode.check_camera_id(camera_id)
-    with _open(path) as reader:  # fail now, not at the first next()
+    with open_bag(path) as reader:  # fail now, not at the first next()
         _connections(reader, path, topic, FEATURE_TYPES)
     return _iter_frames(path, topic, layout, camera_id)
 
@@ -398,9 +398,9 @@ def read_ground_truth_frames(
         As :func:`read_feature_frames`.
     """
     out = []
-    with _open(path) as reader:
+    with open_bag(path) as reader:
         connections = _connections(reader, path, topic, TRUTH_TYPES)
-        for index, (_, msg) in enumerate(_messages(reader, path, connections)):
+        for index, (_, msg) in enumerate(bag_messages(reader, path, connections)):
             try:
                 ids, labels = decode.decode_labels(msg)
             except InputError as err:
@@ -412,9 +412,9 @@ def read_ground_truth_frames(
 def _iter_frames(
     path: str | Path, topic: str, layout: str, camera_id: int
 ) -> Iterator[FeatureFrame]:
-    with _open(path) as reader:
+    with open_bag(path) as reader:
         connections = _connections(reader, path, topic, FEATURE_TYPES)
-        for index, (msgtype, msg) in enumerate(_messages(reader, path, connections)):
+        for index, (msgtype, msg) in enumerate(bag_messages(reader, path, connections)):
             try:
                 ids, uv = _decode(msg, msgtype, layout, camera_id)
                 frame = FeatureFrame(decode.stamp_ns(msg.header), ids, uv)
@@ -424,7 +424,7 @@ def _iter_frames(
 
 
 @contextmanager
-def _open(path: str | Path) -> Iterator[AnyReader]:
+def open_bag(path: str | Path) -> Iterator[AnyReader]:
     """An open AnyReader on ``path``; every rosbags failure becomes a one-line BagError."""
     path = Path(path)
     if not path.exists():
@@ -471,7 +471,7 @@ def _connections(
     return connections
 
 
-def _messages(reader: AnyReader, path: str | Path, connections: list[Any]) -> Iterator[Any]:
+def bag_messages(reader: AnyReader, path: str | Path, connections: list[Any]) -> Iterator[Any]:
     """(msgtype, decoded message) pairs; storage and deserialisation failures become BagError."""
     iterator = reader.messages(connections=connections)
     while True:

@@ -147,7 +147,7 @@ def _write(
     frame_id: str,
 ) -> None:
     msgtype = FORMATS[msg_format]
-    encode = _pointcloud if msg_format == 'pointcloud' else _pointcloud2
+    encode = vins_pointcloud if msg_format == 'pointcloud' else _pointcloud2
     try:
         with Writer(path, version=9, storage_plugin=STORAGES[storage]) as writer:
             connection = writer.add_connection(topic, msgtype, typestore=TYPESTORE)
@@ -391,7 +391,7 @@ def _feature_messages(
             raise InputError(f'frame {index} is a {type(frame).__name__}, not a FeatureFrame')
         _check_stamp(frame.stamp_ns, previous.stamp_ns if previous else None, f'frame {index}')
         xy = _normalise(frame.uv, normalized, index)
-        msg = encode(frame, xy, previous, _header(frame.stamp_ns, frame_id))
+        msg = encode(frame, xy, previous, stamped_header(frame.stamp_ns, frame_id))
         yield frame.stamp_ns, connection, msg
         previous = frame
 
@@ -419,11 +419,11 @@ def _truth_messages(
         check_range(ids, 0, _UINT32, f'truth item {index} ids (uint32)')
         check_range(labels, -_INT32, _INT32, f'truth item {index} labels (int32)')
         columns = {'id': ids, 'label': labels}
-        yield stamp, connection, _cloud2(columns, _TRUTH_FIELDS, _header(stamp, frame_id))
+        yield stamp, connection, _cloud2(columns, _TRUTH_FIELDS, stamped_header(stamp, frame_id))
         last = stamp
 
 
-def _pointcloud(
+def vins_pointcloud(
     frame: FeatureFrame, xy: np.ndarray, previous: FeatureFrame | None, header: Any
 ) -> Any:
     """VINS-Mono layout ``sensor_msgs/msg/PointCloud``."""
@@ -491,7 +491,7 @@ def _cloud2(
     return packed_cloud2(header, columns, layout, _TYPES)
 
 
-def _header(stamp_ns: int, frame_id: str) -> Any:
+def stamped_header(stamp_ns: int, frame_id: str) -> Any:
     sec, nanosec = divmod(stamp_ns, 1_000_000_000)
     return _Header(stamp=_Time(sec=sec, nanosec=nanosec), frame_id=frame_id)
 

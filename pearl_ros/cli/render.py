@@ -24,7 +24,7 @@ import cv2
 import numpy as np
 
 from pearl_ros.bagio import decode
-from pearl_ros.bagio.reader import POINTCLOUD2, _messages, _open
+from pearl_ros.bagio.reader import POINTCLOUD2, bag_messages, open_bag
 from pearl_ros.cli.video import video_writer
 from pearl_ros.core.errors import BagError, InputError, PearlError, UsageParser, one_line
 from pearl_ros.tracking.draw import Overlay, to_bgr
@@ -72,7 +72,7 @@ class LabelFrame:
 def pick_topics(path: Path, labels_topic: str | None, image_topic: str | None
                 ) -> tuple[str, str | None]:
     """The labels topic and the image topic (None: no images) of the bag ``path``."""
-    with _open(path) as reader:
+    with open_bag(path) as reader:
         types = {c.topic: c.msgtype for c in reader.connections}
         counts = {c.topic: 0 for c in reader.connections}
         for connection in reader.connections:
@@ -97,9 +97,9 @@ def pick_topics(path: Path, labels_topic: str | None, image_topic: str | None
 def read_labels(path: Path, topic: str) -> list[LabelFrame]:
     """Every labels message of ``topic``, in recording order."""
     frames = []
-    with _open(path) as reader:
+    with open_bag(path) as reader:
         connections = [c for c in reader.connections if c.topic == topic]
-        for index, (_, msg) in enumerate(_messages(reader, path, connections)):
+        for index, (_, msg) in enumerate(bag_messages(reader, path, connections)):
             try:
                 columns = decode.decode_fields(msg, ('id', 'u', 'v', 'label'))
                 ids = decode.integer_ids(columns['id'], 'label ids')
@@ -134,9 +134,9 @@ def canvas_size(frames: Sequence[LabelFrame]) -> tuple[int, int]:
 
 def images(path: Path, topic: str, wanted: set[int]) -> Iterator[tuple[int, np.ndarray]]:
     """``(stamp_ns, bgr image)`` of the images on ``topic`` whose stamp is in ``wanted``."""
-    with _open(path) as reader:
+    with open_bag(path) as reader:
         connections = [c for c in reader.connections if c.topic == topic]
-        for _, msg in _messages(reader, path, connections):
+        for _, msg in bag_messages(reader, path, connections):
             stamp = decode.stamp_ns(msg.header)
             if stamp in wanted:
                 yield stamp, to_bgr(image_to_array(msg), str(msg.encoding))

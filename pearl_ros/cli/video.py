@@ -39,7 +39,7 @@ import numpy as np
 
 from pearl_ros.bagio import encode
 from pearl_ros.bagio.reader import POINTCLOUD, POINTCLOUD2, TYPESTORE, FeatureFrame
-from pearl_ros.bagio.writer import _header, _pointcloud, open_output_bag
+from pearl_ros.bagio.writer import open_output_bag, stamped_header, vins_pointcloud
 from pearl_ros.core.errors import InputError, PearlError, UsageParser, one_line
 from pearl_ros.pipeline import settings as pipeline_settings
 from pearl_ros.pipeline.messages import Labelled, MessagePipeline
@@ -151,7 +151,7 @@ def features_message(stamp_ns: int, tracks: Tracks, previous: FeatureFrame | Non
     """The VINS-Mono PointCloud of one frame's tracks (points in pixels), and its frame (the
     ``previous`` of the next call: velocities are differences of it, px/s)."""
     frame = FeatureFrame(stamp_ns, tracks.ids % ID_MODULUS, tracks.uv)
-    return _pointcloud(frame, frame.uv, previous, _header(stamp_ns, FRAME_ID)), frame
+    return vins_pointcloud(frame, frame.uv, previous, stamped_header(stamp_ns, FRAME_ID)), frame
 
 
 def labels_of(msg: Any, pipeline: MessagePipeline) -> tuple[Any, np.ndarray, int]:

@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 
 from pearl_ros.bagio.decode import decode_fields, decode_pointcloud, stamp_ns
-from pearl_ros.bagio.reader import _messages, _open
+from pearl_ros.bagio.reader import bag_messages, open_bag
 from pearl_ros.cli.render import main as render_main
 from pearl_ros.cli.video import main
 from pearl_ros.core.metrics import misclassification
@@ -72,9 +72,9 @@ def run(tmp_path_factory: pytest.TempPathFactory) -> Run:
 
 
 def read_topic(bag: Path, topic: str) -> list[Any]:
-    with _open(bag) as reader:
+    with open_bag(bag) as reader:
         connections = [c for c in reader.connections if c.topic == topic]
-        return [msg for _, msg in _messages(reader, bag, connections)]
+        return [msg for _, msg in bag_messages(reader, bag, connections)]
 
 
 def labels_of(msg: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
