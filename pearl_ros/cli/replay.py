@@ -14,13 +14,13 @@ from __future__ import annotations
 
 import argparse
 import sys
-import time
 import typing
 from collections.abc import Sequence
 from pathlib import Path
 
 from pearl_ros.bagio import decode
 from pearl_ros.bagio.writer import STORAGES
+from pearl_ros.cli.progress import ProgressBar
 from pearl_ros.core.errors import PearlError, UsageParser, one_line
 from pearl_ros.pipeline import settings as pipeline_settings
 from pearl_ros.pipeline.messages import Skipped, SkipWarnings
@@ -89,7 +89,7 @@ def settings_from_args(args: argparse.Namespace) -> ReplaySettings:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of ``pearl_replay``; 0 on success, 1 with one ``error:`` line otherwise."""
-    bar: _ProgressBar | None = None
+    bar: ProgressBar | None = None
     try:
         try:
             args = build_parser().parse_args(argv)
@@ -99,7 +99,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         if args.stats is not None:
             check_stats_path(args.stats, args.output)
         show = args.progress == 'on' or (args.progress == 'auto' and sys.stderr.isatty())
-        bar = _ProgressBar(sys.stderr) if show else None
+        bar = ProgressBar(sys.stderr, 'messages') if show else None
         warnings = _Warnings(sys.stderr, bar, args.input_topic)
         stats = replay(args.in_bag, args.output, settings, force=args.force, warn=warnings,
                        progress=bar)
@@ -136,43 +136,10 @@ def _report(stats: ReplayStats) -> str:
     return text
 
 
-class _ProgressBar:
-    """``[#####-----] done/total`` on one terminal line, redrawn at most 10 times a second."""
-
-    def __init__(self, stream: typing.TextIO, width: int = 30) -> None:
-        self._stream = stream
-        self._width = width
-        self._last = 0.0
-        self._start = time.perf_counter()
-        self._shown = False
-
-    def __call__(self, done: int, total: int) -> None:
-        now = time.perf_counter()
-        if done < total and now - self._last < 0.1:
-            return
-        self._last = now
-        filled = self._width * done // total if total else self._width
-        rate = done / (now - self._start) if now > self._start else 0.0
-        self._stream.write(f'\r[{"#" * filled}{"-" * (self._width - filled)}] '
-                           f'{done}/{total} messages {rate:6.1f}/s')
-        self._stream.flush()
-        self._shown = True
-
-    def clear(self) -> None:
-        """End the bar's line so that a message can be printed below it."""
-        if self._shown:
-            self._stream.write('\n')
-            self._stream.flush()
-            self._shown = False
-
-    def close(self) -> None:
-        self.clear()
-
-
 class _Warnings:
     """Skip warnings on stderr (:class:`SkipWarnings`), clearing the progress bar first."""
 
-    def __init__(self, stream: typing.TextIO, bar: _ProgressBar | None, topic: str) -> None:
+    def __init__(self, stream: typing.TextIO, bar: ProgressBar | None, topic: str) -> None:
         self._stream = stream
         self._bar = bar
         self._skips = SkipWarnings(topic)

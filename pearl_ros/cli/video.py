@@ -27,7 +27,6 @@ import os
 import sys
 import tempfile
 import time
-import typing
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass, field
@@ -40,6 +39,7 @@ import numpy as np
 from pearl_ros.bagio import encode
 from pearl_ros.bagio.reader import POINTCLOUD, POINTCLOUD2, TYPESTORE, FeatureFrame
 from pearl_ros.bagio.writer import open_output_bag, stamped_header, vins_pointcloud
+from pearl_ros.cli.progress import ProgressBar
 from pearl_ros.core.errors import InputError, PearlError, UsageParser, one_line
 from pearl_ros.pipeline import settings as pipeline_settings
 from pearl_ros.pipeline.messages import Labelled, MessagePipeline
@@ -263,7 +263,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         except SystemExit as done:  # --help
             return int(done.code or 0)
         show = args.progress == 'on' or (args.progress == 'auto' and sys.stderr.isatty())
-        bar = ProgressBar(sys.stderr) if show else None
+        bar = ProgressBar(sys.stderr, 'frames') if show else None
         stats = run(args, bar)
     except (PearlError, OSError, cv2.error) as err:
         print(f'error: {one_line(err, 400)}', file=sys.stderr)
@@ -279,40 +279,6 @@ def main(argv: Sequence[str] | None = None) -> int:
         line += f'; annotated video {args.annotated}'
     print(line)
     return 0
-
-
-class ProgressBar:
-    """``[#####-----] done/total frames`` on one terminal line, redrawn at most 10 times a
-    second (``done frames`` alone when the file does not say how many it holds)."""
-
-    def __init__(self, stream: typing.TextIO, width: int = 30) -> None:
-        self._stream = stream
-        self._width = width
-        self._last = 0.0
-        self._start = time.perf_counter()
-        self._shown = False
-
-    def __call__(self, done: int, total: int) -> None:
-        now = time.perf_counter()
-        if now - self._last < 0.1 and done != total:
-            return
-        self._last = now
-        rate = done / (now - self._start) if now > self._start else 0.0
-        if total > 0:
-            filled = self._width * min(done, total) // total
-            bar = f'[{"#" * filled}{"-" * (self._width - filled)}] {done}/{total}'
-        else:
-            bar = f'{done}'
-        self._stream.write(f'\r{bar} frames {rate:6.1f}/s')
-        self._stream.flush()
-        self._shown = True
-
-    def close(self) -> None:
-        """End the bar's line so that what follows starts on its own."""
-        if self._shown:
-            self._stream.write('\n')
-            self._stream.flush()
-            self._shown = False
 
 
 if __name__ == '__main__':
