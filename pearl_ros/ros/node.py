@@ -33,28 +33,22 @@ SIGINT or SIGTERM stops the node between two callbacks, with exit status 0.
 
 from __future__ import annotations
 
-import signal
 import sys
 import time
 from collections import Counter
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass, field
-from types import FrameType
 from typing import Any
 
 import numpy as np
-import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.event_handler import SubscriptionEventCallbacks
-from rclpy.exceptions import NameValidationException, ParameterException
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.exceptions import NameValidationException
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
-from rclpy.signals import SignalHandlerOptions
-from rclpy.utilities import remove_ros_args
 from sensor_msgs.msg import Image, PointCloud2
 from std_msgs.msg import Header
 from std_srvs.srv import Trigger
@@ -64,7 +58,7 @@ from pearl_ros.core.errors import InputError, one_line
 from pearl_ros.online.config import unknown_parameter
 from pearl_ros.pipeline import settings as pipeline_settings
 from pearl_ros.pipeline.messages import Labelled, MessagePipeline, Skipped
-from pearl_ros.ros import convert, params
+from pearl_ros.ros import convert, params, runner
 from pearl_ros.tracking import image as image_io
 from pearl_ros.tracking.draw import Overlay, to_bgr
 
@@ -559,28 +553,6 @@ example:
 """
 
 
-class StopRequest:
-    """SIGINT and SIGTERM ask the spin loop to stop between callbacks, never inside one.
-
-    rclpy's own handlers shut the context down at once, under a callback that may be
-    publishing; the loop in :func:`main` looks at :attr:`requested` between callbacks instead.
-    """
-
-    SIGNALS = (signal.SIGINT, signal.SIGTERM)
-
-    def __init__(self) -> None:
-        self.requested = False
-        self._previous = {sig: signal.signal(sig, self._on_signal) for sig in self.SIGNALS}
-
-    def _on_signal(self, signum: int, frame: FrameType | None) -> None:
-        del signum, frame
-        self.requested = True
-
-    def restore(self) -> None:
-        for sig, handler in self._previous.items():
-            signal.signal(sig, handler)
-
-
 def main(args: list[str] | None = None) -> int:
     """``pearl_node`` console script: spin until SIGINT or SIGTERM, then exit 0.
 
@@ -588,59 +560,8 @@ def main(args: list[str] | None = None) -> int:
     ``error:`` line for a bad parameter, parameter file or argument; ``-h`` / ``--help`` prints
     the usage and exits 0 without starting ROS.
     """
-    argv = list(sys.argv if args is None else args)
-    files = params.params_files(argv)
-    try:
-        for path in files:  # each readable and a ROS parameter file, before rcl parses it
-            pipeline_settings.load_file(path, None)
-        own = remove_ros_args(argv)[1:]
-    except (InputError, RuntimeError) as err:  # RuntimeError: rclpy's RCLInvalidROSArgsError
-        return fail(err)
-    if own and own[0] in ('-h', '--help'):
-        print(USAGE.format(parameters=params.help_text()), end='')
-        return 0
-    if own:
-        return fail(f'unrecognized arguments: {" ".join(own)} (ROS arguments go after '
-                     '--ros-args; see pearl_node --help)')
-    stop = StopRequest()
-    try:
-        return _run(argv, files, stop)
-    finally:
-        stop.restore()
-
-
-def _run(argv: list[str], files: list[str], stop: StopRequest) -> int:
-    try:
-        rclpy.init(args=argv, signal_handler_options=SignalHandlerOptions.NO)
-    except RuntimeError as err:  # rclpy's RCLError
-        return fail(err)
-    node = None
-    try:
-        node = PearlNode(params_files=files)
-        executor = SingleThreadedExecutor()
-        executor.add_node(node)
-        while not stop.requested and rclpy.ok():
-            executor.spin_once(timeout_sec=0.1)
-    except (InputError, ParameterException) as err:
-        return fail(err)
-    except ExternalShutdownException:
-        pass
-    except Exception:
-        if rclpy.ok():  # a bug
-            raise
-        # else: the context was shut down under a callback; what rclpy raised then is noise
-    finally:
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
-    return 0
-
-
-def fail(err: BaseException | str) -> int:
-    """One ``error:`` line on stderr (rcl's messages lose their source locations); 1."""
-    text = one_line(err, None)
-    print(f'error: {text.split(", at /")[0]}', file=sys.stderr)
-    return 1
+    return runner.run(args, 'pearl_node', lambda: USAGE.format(parameters=params.help_text()),
+                      lambda files: PearlNode(params_files=files))
 
 
 if __name__ == '__main__':

@@ -41,17 +41,12 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import Point32
 from rcl_interfaces.msg import SetParametersResult
-from rclpy.exceptions import ParameterException
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import QoSProfile, ReliabilityPolicy
-from rclpy.signals import SignalHandlerOptions
-from rclpy.utilities import remove_ros_args
 from sensor_msgs.msg import CameraInfo, ChannelFloat32, Image, PointCloud
 from std_msgs.msg import Header
 
@@ -60,8 +55,8 @@ from pearl_ros.core.config import ParameterSpec, check_fields, check_value, para
 from pearl_ros.core.errors import InputError, one_line
 from pearl_ros.online.config import unknown_parameter
 from pearl_ros.pipeline import settings as pipeline_settings
-from pearl_ros.ros import params
-from pearl_ros.ros.node import WARN_PERIOD_S, StopRequest, fail, input_qos
+from pearl_ros.ros import params, runner
+from pearl_ros.ros.node import WARN_PERIOD_S, input_qos
 from pearl_ros.tracking import image as image_io
 from pearl_ros.tracking.tracker import CameraModel, FeatureTracker, TrackerConfig, Tracks
 
@@ -438,51 +433,8 @@ def main(args: list[str] | None = None) -> int:
     ``error:`` line for a bad parameter, parameter file or argument; ``-h`` / ``--help`` prints
     the usage and exits 0 without starting ROS.
     """
-    argv = list(sys.argv if args is None else args)
-    files = params.params_files(argv)
-    try:
-        for path in files:  # each readable and a ROS parameter file, before rcl parses it
-            pipeline_settings.load_file(path, None)
-        own = remove_ros_args(argv)[1:]
-    except (InputError, RuntimeError) as err:  # RuntimeError: rclpy's RCLInvalidROSArgsError
-        return fail(err)
-    if own and own[0] in ('-h', '--help'):
-        print(USAGE.format(parameters=help_text()), end='')
-        return 0
-    if own:
-        return fail(f'unrecognized arguments: {" ".join(own)} (ROS arguments go after '
-                     '--ros-args; see pearl_tracker --help)')
-    stop = StopRequest()
-    try:
-        return _run(argv, files, stop)
-    finally:
-        stop.restore()
-
-
-def _run(argv: list[str], files: list[str], stop: StopRequest) -> int:
-    try:
-        rclpy.init(args=argv, signal_handler_options=SignalHandlerOptions.NO)
-    except RuntimeError as err:  # rclpy's RCLError
-        return fail(err)
-    node = None
-    try:
-        node = TrackerNode(params_files=files)
-        executor = SingleThreadedExecutor()
-        executor.add_node(node)
-        while not stop.requested and rclpy.ok():
-            executor.spin_once(timeout_sec=0.1)
-    except (InputError, ParameterException) as err:
-        return fail(err)
-    except ExternalShutdownException:
-        pass
-    except Exception:
-        if rclpy.ok():  # a bug
-            raise
-    finally:
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
-    return 0
+    return runner.run(args, 'pearl_tracker', lambda: USAGE.format(parameters=help_text()),
+                      lambda files: TrackerNode(params_files=files))
 
 
 if __name__ == '__main__':

@@ -1,0 +1,109 @@
+"""How a pearl_ros node process runs: arguments checked before ROS starts, ``--help``, a spin
+loop that SIGINT and SIGTERM stop between callbacks, and one ``error:`` line for a user error.
+
+``pearl_node`` and ``pearl_tracker`` both run through :func:`run`.
+"""
+
+from __future__ import annotations
+
+import signal
+import sys
+from collections.abc import Callable
+from types import FrameType
+
+import rclpy
+from rclpy.exceptions import ParameterException
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.signals import SignalHandlerOptions
+from rclpy.utilities import remove_ros_args
+
+from pearl_ros.core.errors import InputError, one_line
+from pearl_ros.pipeline import settings as pipeline_settings
+from pearl_ros.ros import params
+
+
+class StopRequest:
+    """SIGINT and SIGTERM ask the spin loop to stop between callbacks, never inside one.
+
+    rclpy's own handlers shut the context down at once, under a callback that may be
+    publishing; the loop in :func:`run` looks at :attr:`requested` between callbacks instead.
+    """
+
+    SIGNALS = (signal.SIGINT, signal.SIGTERM)
+
+    def __init__(self) -> None:
+        self.requested = False
+        self._previous = {sig: signal.signal(sig, self._on_signal) for sig in self.SIGNALS}
+
+    def _on_signal(self, signum: int, frame: FrameType | None) -> None:
+        del signum, frame
+        self.requested = True
+
+    def restore(self) -> None:
+        for sig, handler in self._previous.items():
+            signal.signal(sig, handler)
+
+
+def fail(err: BaseException | str) -> int:
+    """One ``error:`` line on stderr (rcl's messages lose their source locations); 1."""
+    text = one_line(err, None)
+    print(f'error: {text.split(", at /")[0]}', file=sys.stderr)
+    return 1
+
+
+def run(args: list[str] | None, program: str, usage: Callable[[], str],
+        make_node: Callable[[list[str]], Node]) -> int:
+    """Run the node ``make_node(params_files)`` until SIGINT or SIGTERM, then return 0.
+
+    ``args`` as ``sys.argv`` (the program first; default ``sys.argv``). Returns 1 after one
+    ``error:`` line for a bad parameter, parameter file or argument; ``-h`` / ``--help``
+    prints ``usage()`` and returns 0 without starting ROS.
+    """
+    argv = list(sys.argv if args is None else args)
+    files = params.params_files(argv)
+    try:
+        for path in files:  # each readable and a ROS parameter file, before rcl parses it
+            pipeline_settings.load_file(path, None)
+        own = remove_ros_args(argv)[1:]
+    except (InputError, RuntimeError) as err:  # RuntimeError: rclpy's RCLInvalidROSArgsError
+        return fail(err)
+    if own and own[0] in ('-h', '--help'):
+        print(usage(), end='')
+        return 0
+    if own:
+        return fail(f'unrecognized arguments: {" ".join(own)} (ROS arguments go after '
+                    f'--ros-args; see {program} --help)')
+    stop = StopRequest()
+    try:
+        return _spin(argv, files, stop, make_node)
+    finally:
+        stop.restore()
+
+
+def _spin(argv: list[str], files: list[str], stop: StopRequest,
+          make_node: Callable[[list[str]], Node]) -> int:
+    try:
+        rclpy.init(args=argv, signal_handler_options=SignalHandlerOptions.NO)
+    except RuntimeError as err:  # rclpy's RCLError
+        return fail(err)
+    node = None
+    try:
+        node = make_node(files)
+        executor = SingleThreadedExecutor()
+        executor.add_node(node)
+        while not stop.requested and rclpy.ok():
+            executor.spin_once(timeout_sec=0.1)
+    except (InputError, ParameterException) as err:
+        return fail(err)
+    except ExternalShutdownException:
+        pass
+    except Exception:
+        if rclpy.ok():  # a bug
+            raise
+        # else: the context was shut down under a callback; what rclpy raised then is noise
+    finally:
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown()
+    return 0
