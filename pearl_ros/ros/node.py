@@ -42,7 +42,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from diagnostic_msgs.msg import DiagnosticArray
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.event_handler import SubscriptionEventCallbacks
 from rclpy.exceptions import NameValidationException
@@ -50,7 +50,6 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from sensor_msgs.msg import Image, PointCloud2
-from std_msgs.msg import Header
 from std_srvs.srv import Trigger
 
 from pearl_ros.bagio import decode
@@ -467,17 +466,10 @@ class PearlNode(Node):
             'publishers with incompatible QoS': stats.incompatible_qos,
             **self._image_values(),
         }
-        status = DiagnosticStatus(
-            level=DiagnosticStatus.WARN if problems else DiagnosticStatus.OK,
-            name=f'{self.get_name()}: motion segmentation',
-            message='; '.join(problems) if problems else 'segmenting',
-            hardware_id=self.get_fully_qualified_name(),
-            values=[KeyValue(key=key, value=str(value)) for key, value in values.items()],
-        )
         stats.period_start, stats.period_received, stats.period_problems = now, 0, 0
         stats.period_bad_images = 0
         stats.period_latency_s = []
-        return DiagnosticArray(header=_header(self), status=[status])
+        return runner.diagnostics(self, 'motion segmentation', 'segmenting', problems, values)
 
     def _image_values(self) -> dict[str, Any]:
         """The diagnostics of ``image_labels`` (none when ``image_topic`` is empty)."""
@@ -519,10 +511,6 @@ def _ints_as_floats(parameters: list[Parameter[Any]]) -> list[Parameter[Any]]:
     return [Parameter(p.name, Parameter.Type.DOUBLE, float(p.value))
             if p.name in _FLOAT_NAMES and p.type_ == Parameter.Type.INTEGER else p
             for p in parameters]
-
-
-def _header(node: Node) -> Header:
-    return Header(stamp=node.get_clock().now().to_msg())
 
 
 USAGE = """usage: pearl_node [-h] [--ros-args [-r features:=TOPIC] [--params-file FILE]

@@ -8,15 +8,18 @@ from __future__ import annotations
 
 import signal
 import sys
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from types import FrameType
+from typing import Any
 
 import rclpy
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.signals import SignalHandlerOptions
 from rclpy.utilities import remove_ros_args
+from std_msgs.msg import Header
 
 from pearl_ros.core.errors import InputError, one_line
 from pearl_ros.pipeline import settings as pipeline_settings
@@ -107,3 +110,18 @@ def _spin(argv: list[str], files: list[str], stop: StopRequest,
             node.destroy_node()
         rclpy.try_shutdown()
     return 0
+
+
+def diagnostics(node: Node, task: str, running: str, problems: list[str],
+                values: Mapping[str, Any]) -> DiagnosticArray:
+    """One ``/diagnostics`` message of ``node``: a status named after the node and its ``task``,
+    WARN with the ``problems`` joined when there are any, else OK saying ``running``."""
+    status = DiagnosticStatus(
+        level=DiagnosticStatus.WARN if problems else DiagnosticStatus.OK,
+        name=f'{node.get_name()}: {task}',
+        message='; '.join(problems) if problems else running,
+        hardware_id=node.get_fully_qualified_name(),
+        values=[KeyValue(key=key, value=str(value)) for key, value in values.items()],
+    )
+    return DiagnosticArray(header=Header(stamp=node.get_clock().now().to_msg()),
+                           status=[status])

@@ -41,7 +41,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import Point32
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.node import Node
@@ -343,17 +343,9 @@ class TrackerNode(Node):
             'track resets (stamp went back)': stats.resets,
             'internal errors': stats.errors,
         }
-        status = DiagnosticStatus(
-            level=DiagnosticStatus.WARN if problems else DiagnosticStatus.OK,
-            name=f'{self.get_name()}: feature tracking',
-            message='; '.join(problems) if problems else 'tracking',
-            hardware_id=self.get_fully_qualified_name(),
-            values=[KeyValue(key=key, value=str(value)) for key, value in values.items()],
-        )
         stats.period_start, stats.period_received, stats.period_problems = now, 0, 0
         stats.period_track_s = []
-        return DiagnosticArray(header=Header(stamp=self.get_clock().now().to_msg()),
-                               status=[status])
+        return runner.diagnostics(self, 'feature tracking', 'tracking', problems, values)
 
 
 def _declare(node: Node, overrides: Mapping[str, Parameter[Any]]
