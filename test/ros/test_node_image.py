@@ -346,3 +346,35 @@ def test_the_camera_launch_file_chains_the_tracker_and_the_node_on_one_image() -
     assert "{'image_topic': LaunchConfiguration('image')}" in parameters
     assert "LaunchConfiguration('params_file')" in parameters
     assert REPO.joinpath('setup.py').read_text().count("glob('launch/*.launch.py')") == 1
+
+
+def test_a_live_camera_at_15_hz_gets_labels_and_an_annotated_image_for_nearly_every_frame(
+        ros: Ros) -> None:
+    # Issue 16's live case: a 640 x 480 camera publishing on its own clock at 15 Hz through
+    # pearl_tracker and pearl_node on one executor, nobody waiting for answers between frames.
+    scene = render_scene(7, frames=45, size=(480, 640))
+    stamps = [3_000_000_000 + k * 66_666_667 for k in range(len(scene.frames))]
+    ros.add(TrackerNode(context=ros.context, namespace=ros.ns, parameter_overrides=[
+        Parameter('qos', value='reliable'), Parameter('qos_depth', value=5)]))
+    node = ros.pearl(image_topic='image')  # default budget, as a user runs it
+    viewer = Viewer(ros)
+    viewer.wait_for(node, images=2)
+    assert ros.spin_until(lambda: node.count_publishers(f'{ros.ns}/features') > 0)
+    sent: list[int] = []
+
+    def publish() -> None:
+        if len(sent) < len(stamps):
+            k = len(sent)
+            pixels = scene.frames[k]
+            viewer.images.publish(Image(header=header(stamps[k]),
+                                        **array_to_image_fields(pixels, 'mono8')))
+            sent.append(k)
+
+    camera = viewer.node.create_timer(1.0 / 15.0, publish)
+    assert ros.spin_until(lambda: len(sent) == len(stamps), 10.0)
+    camera.cancel()
+    ros.spin_until(lambda: len(viewer.drawn) == len(stamps), 3.0)
+    answered = [s for s in stamps if s in viewer.labels and s in viewer.drawn]
+    assert len(answered) >= 0.95 * len(stamps), (
+        f'{len(answered)} of {len(stamps)} frames got labels and an annotated image')
+    assert all(viewer.drawn[s][0].width == 640 for s in answered)
