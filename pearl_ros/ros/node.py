@@ -61,7 +61,6 @@ from pearl_ros.ros import convert, params, runner
 from pearl_ros.tracking import image as image_io
 from pearl_ros.tracking.draw import Overlay, to_bgr
 
-WARN_PERIOD_S = 5.0  # at most one warning of each kind this often
 OUTPUT_DEPTH = 10  # messages, keep-last depth of the (reliable) outputs
 # Images, and label results, waiting for their partner of the same stamp (each kind): a tracker
 # answers an image within a frame or two, so 30 outlasts any normal delay.
@@ -196,7 +195,7 @@ class PearlNode(Node):
             raise
         self._pipeline = MessagePipeline(settings, convert.TYPES)
         self.stats = Stats()
-        self._warned: dict[str, tuple[float, int]] = {}  # kind -> (last time, suppressed)
+        self._warn = runner.Throttle(self).warn  # one warning per kind per WARN_PERIOD_S
 
         node = settings.node
         self._msg_class = convert.MSG_CLASSES[node.msg_type]
@@ -249,8 +248,8 @@ class PearlNode(Node):
 
         A message the pipeline skips gets no output: it is counted (malformed, or skipped when
         it was read but had nothing to segment) and warned about, once per kind of problem per
-        :data:`WARN_PERIOD_S`. A capped message (more than ``max_features``) and a stamp going
-        back in time (the window is emptied first) are warned about too.
+        :data:`runner.WARN_PERIOD_S`. A capped message (more than ``max_features``) and a stamp
+        going back in time (the window is emptied first) are warned about too.
         """
         start = time.perf_counter()
         stats, msg_type = self.stats, self.settings.node.msg_type
@@ -485,18 +484,6 @@ class PearlNode(Node):
             'images waiting': matcher.waiting('image'),
             'labels waiting': matcher.waiting('labels'),
         }
-
-    def _warn(self, kind: str, text: str) -> None:
-        """A warning, at most one of each ``kind`` per :data:`WARN_PERIOD_S`."""
-        now = time.monotonic()
-        last, suppressed = self._warned.get(kind, (-np.inf, 0))
-        if now - last < WARN_PERIOD_S:
-            self._warned[kind] = (last, suppressed + 1)
-            return
-        if suppressed:
-            text += f' ({suppressed} more like it in the last {now - last:.0f} s)'
-        self._warned[kind] = (now, 0)
-        self.get_logger().warning(text)
 
 
 _FLOAT_NAMES = frozenset(item.name for item in params.ALL_SPECS if item.type is float)

@@ -6,8 +6,10 @@ loop that SIGINT and SIGTERM stop between callbacks, and one ``error:`` line for
 
 from __future__ import annotations
 
+import math
 import signal
 import sys
+import time
 from collections.abc import Callable, Mapping
 from types import FrameType
 from typing import Any
@@ -24,6 +26,28 @@ from std_msgs.msg import Header
 from pearl_ros.core.errors import InputError, one_line
 from pearl_ros.pipeline import settings as pipeline_settings
 from pearl_ros.ros import params
+
+WARN_PERIOD_S = 5.0  # s, at most one warning of each kind this often
+
+
+class Throttle:
+    """One warning of each kind per :data:`WARN_PERIOD_S`, counting the
+    suppressed ones."""
+
+    def __init__(self, node: Node) -> None:
+        self._node = node
+        self._warned: dict[str, tuple[float, int]] = {}  # kind -> (last time, suppressed)
+
+    def warn(self, kind: str, text: str) -> None:
+        now = time.monotonic()
+        last, suppressed = self._warned.get(kind, (-math.inf, 0))
+        if now - last < WARN_PERIOD_S:
+            self._warned[kind] = (last, suppressed + 1)
+            return
+        if suppressed:
+            text += f' ({suppressed} more like it in the last {now - last:.0f} s)'
+        self._warned[kind] = (now, 0)
+        self._node.get_logger().warning(text)
 
 
 class StopRequest:

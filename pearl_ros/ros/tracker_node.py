@@ -56,7 +56,7 @@ from pearl_ros.core.errors import InputError, one_line
 from pearl_ros.online.config import unknown_parameter
 from pearl_ros.pipeline import settings as pipeline_settings
 from pearl_ros.ros import params, runner
-from pearl_ros.ros.node import WARN_PERIOD_S, input_qos
+from pearl_ros.ros.node import input_qos
 from pearl_ros.tracking import image as image_io
 from pearl_ros.tracking.tracker import CameraModel, FeatureTracker, TrackerConfig, Tracks
 
@@ -154,26 +154,6 @@ class Stats:
     period_track_s: list[float] = field(default_factory=list)
 
 
-class Throttle:
-    """One warning of each kind per :data:`~pearl_ros.ros.node.WARN_PERIOD_S`, counting the
-    suppressed ones."""
-
-    def __init__(self, node: Node) -> None:
-        self._node = node
-        self._warned: dict[str, tuple[float, int]] = {}  # kind -> (last time, suppressed)
-
-    def warn(self, kind: str, text: str) -> None:
-        now = time.monotonic()
-        last, suppressed = self._warned.get(kind, (-np.inf, 0))
-        if now - last < WARN_PERIOD_S:
-            self._warned[kind] = (last, suppressed + 1)
-            return
-        if suppressed:
-            text += f' ({suppressed} more like it in the last {now - last:.0f} s)'
-        self._warned[kind] = (now, 0)
-        self._node.get_logger().warning(text)
-
-
 class TrackerNode(Node):
     """The tracker node (module docstring). Keyword arguments go to ``rclpy.node.Node``.
 
@@ -207,7 +187,7 @@ class TrackerNode(Node):
         self._camera_key: tuple[Any, ...] | None = None
         self._last_stamp: int | None = None
         self.stats = Stats()
-        self._throttle = Throttle(self)
+        self._throttle = runner.Throttle(self)
         qos = input_qos(self.config.qos, self.config.qos_depth)
         self._image_sub = self.create_subscription(Image, 'image', self._on_image, qos)
         self._info_sub = self.create_subscription(CameraInfo, 'camera_info',
