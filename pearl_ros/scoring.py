@@ -21,7 +21,7 @@ import numpy as np
 
 from pearl_ros.bagio import reader
 from pearl_ros.core.errors import InputError
-from pearl_ros.core.labels import OUTLIER
+from pearl_ros.core.labels import OUTLIER, num_motions
 from pearl_ros.core.metrics import misclassification
 
 TRUTH_TOPIC = '/ground_truth/labels'
@@ -145,13 +145,13 @@ def score_frame(stamp_ns: int, ids: np.ndarray, labels: np.ndarray,
                         count=ids.size) if frame else np.zeros(ids.size, dtype=bool)
     if frame is None or not known.any():
         return FrameScore(int(stamp_ns), int(ids.size), int(labelled.sum()),
-                          _motions(labels), 0, 0, 0, 0, None, 0)
+                          num_motions(labels), 0, 0, 0, 0, None, 0)
     true = np.array([frame[feature] for feature in ids[known].tolist()], dtype=np.int64)
     pred = labels[known]
     error = misclassification(pred, true)
     return FrameScore(
         stamp_ns=int(stamp_ns), features=int(ids.size), labelled=int(labelled.sum()),
-        motions=_motions(labels), scored=int(known.sum()), true_motions=_motions(true),
+        motions=num_motions(labels), scored=int(known.sum()), true_motions=num_motions(true),
         true_outliers=int(np.count_nonzero(true == OUTLIER)),
         outliers_found=int(np.count_nonzero((true == OUTLIER) & (pred == OUTLIER))),
         error=error, wrong=int(round(error * true.size)),
@@ -255,10 +255,6 @@ def label_string(labels: np.ndarray, width: int = 0) -> str:
     if width <= 0 or len(text) <= width:
         return text
     return f'{text[:width]} +{len(text) - width} more'
-
-
-def _motions(labels: np.ndarray) -> int:
-    return int(np.unique(labels[labels != OUTLIER]).size)
 
 
 def _count(number: int, noun: str) -> str:

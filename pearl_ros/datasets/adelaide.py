@@ -12,7 +12,7 @@ import scipy.io
 from scipy.io.matlab import MatReadError
 
 from pearl_ros.core.errors import InputError, one_line
-from pearl_ros.core.labels import OUTLIER
+from pearl_ros.core.labels import OUTLIER, num_motions
 from pearl_ros.datasets._files import data_files
 
 
@@ -33,7 +33,7 @@ class Pair:
 
     @property
     def num_motions(self) -> int:
-        return int(np.unique(self.labels[self.labels != OUTLIER]).size)
+        return num_motions(self.labels)
 
     @property
     def outlier_share(self) -> float:

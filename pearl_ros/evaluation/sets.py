@@ -20,7 +20,7 @@ import numpy as np
 
 from pearl_ros.core.config import PearlConfig
 from pearl_ros.core.errors import PearlError
-from pearl_ros.core.labels import OUTLIER
+from pearl_ros.core.labels import OUTLIER, num_motions
 from pearl_ros.core.metrics import misclassification
 from pearl_ros.online.config import OnlineConfig
 
@@ -83,7 +83,7 @@ def score(dataset: str, name: str, pred: np.ndarray, truth: np.ndarray, seconds:
         error = misclassification(pred, truth)
     recall = 100.0 * float(np.mean(pred[~true] == OUTLIER)) if np.any(~true) else math.nan
     rejected = 100.0 * float(np.mean(pred[true] == OUTLIER)) if np.any(true) else math.nan
-    return Score(dataset, name, 100.0 * error, int(np.unique(truth[true]).size),
+    return Score(dataset, name, 100.0 * error, num_motions(truth),
                  int(motions_found), int(truth.size), seconds, recall, rejected)
 
 

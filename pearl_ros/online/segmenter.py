@@ -27,7 +27,7 @@ from scipy.spatial import cKDTree
 
 from pearl_ros.core.config import PearlConfig, SolverSettings
 from pearl_ros.core.errors import InputError
-from pearl_ros.core.labels import OUTLIER
+from pearl_ros.core.labels import OUTLIER, num_motions
 from pearl_ros.core.models import get_model
 from pearl_ros.core.neighbourhood import Neighbourhood, neighbourhood
 from pearl_ros.core.pearl import fit, noise_scale
@@ -179,9 +179,9 @@ class OnlineSegmenter:
         labels[seen] = motion_labels
         self._label_of_track = {int(k): int(v) for k, v in zip(keys, motion_labels, strict=True)
                                 if v != OUTLIER}
-        motions = np.unique(motion_labels[motion_labels != OUTLIER]).size
-        return FrameResult(stamp_ns, labels, int(motions), span, int(fitted.size) if span else 0,
-                           model_name, reset, warm, time.perf_counter() - start)
+        return FrameResult(stamp_ns, labels, num_motions(motion_labels), span,
+                           int(fitted.size) if span else 0, model_name, reset, warm,
+                           time.perf_counter() - start)
 
     def _model_name(self, span: int) -> str:
         if self.config.model in _TWO_VIEW:
