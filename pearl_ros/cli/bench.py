@@ -542,6 +542,19 @@ def _parallel(function: Any, tasks: Sequence[Any], jobs: int) -> Iterator[Any]:
         yield from pool.imap(function, tasks, chunksize=1)
 
 
+def hopkins_tasks(root: Path, names: Sequence[str], seed: int, frames: str, config: PearlConfig,
+                  oracle: bool = False, everything: Sequence[str] | None = None) -> list[_Task]:
+    """One fit task per sequence. A sequence's seed comes from ``seed`` and its position among
+    all the folder's sequences (``everything``, read from ``root`` when not given), so it is
+    the same whichever sequences are run and in whichever worker."""
+    if everything is None:
+        from pearl_ros.datasets.hopkins import sequence_names
+
+        everything = sequence_names(root, include_dancing=True)
+    index = {name: i for i, name in enumerate(everything)}
+    return [_Task(str(root), name, index[name], seed, frames, config, oracle) for name in names]
+
+
 def _hopkins155(args: argparse.Namespace) -> int:
     from pearl_ros.datasets.hopkins import sequence_names
 
@@ -576,10 +589,7 @@ def _hopkins155(args: argparse.Namespace) -> int:
         from pearl_ros.cli.bench_sets import hopkins_outliers
 
         return hopkins_outliers(args, root, names)
-    tasks = [
-        _Task(str(root), name, index[name], args.seed, args.frames, config, args.oracle)
-        for name in names
-    ]
+    tasks = hopkins_tasks(root, names, args.seed, args.frames, config, args.oracle, everything)
 
     csv_file = None
     if args.csv:

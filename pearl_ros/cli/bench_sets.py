@@ -186,7 +186,7 @@ def _suite_item(item: tuple[str, Any]) -> Score:
 def _suite_items(data: Path, args: argparse.Namespace) -> list[tuple[str, Any]]:
     import dataclasses
 
-    from pearl_ros.cli.bench import _Task
+    from pearl_ros.cli.bench import hopkins_tasks
     from pearl_ros.cli.bench_stream import StreamTask
     from pearl_ros.datasets.adelaide import pair_paths
     from pearl_ros.datasets.hopkins import sequence_names
@@ -194,13 +194,11 @@ def _suite_items(data: Path, args: argparse.Namespace) -> list[tuple[str, Any]]:
 
     _, config, online = _configs(args)
     hop = data / SET_FOLDERS['hopkins155']
-    everything = sequence_names(hop, include_dancing=True)
     names = sequence_names(hop)
     two = dataclasses.replace(config, model='fundamental')
     items: list[tuple[str, Any]] = []
     for frames, cfg in (('all', config), ('two', two)):
-        items += [('hopkins', _Task(str(hop), n, everything.index(n), args.seed, frames, cfg))
-                  for n in names]
+        items += [('hopkins', task) for task in hopkins_tasks(hop, names, args.seed, frames, cfg)]
     items += [('stream', StreamTask(str(hop), n, config, online)) for n in names]
     items += [('set', Task('hopkins_outliers', str(hop / n / f'{n}_truth.mat'), 'all', config,
                            online, args.seed, SUITE_OUTLIERS)) for n in names[::SUITE_EVERY]]
