@@ -56,7 +56,7 @@ def energy(problem: Problem, labels: np.ndarray) -> float:
     """E(f) of ``labels`` (N,) int, indices into the rows of ``problem.unary``."""
     data = problem.unary[labels, np.arange(labels.size)].sum()
     p, q = problem.edges[:, 0], problem.edges[:, 1]
-    if problem.outlier_tie == 1.0:
+    if problem.outlier_tie == 1.0:  # plain Potts: the sum over cut edges, as it always was
         smooth = problem.weights[labels[p] != labels[q]].sum()
     else:
         smooth = pair_costs(problem, labels[p], labels[q]).sum()
