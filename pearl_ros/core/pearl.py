@@ -101,8 +101,8 @@ def noise_level(residuals: np.ndarray, dof: float, floor: float, min_samples: in
     return float(min(max(np.sqrt(np.sum(np.square(residuals)) / (dof * spare)), floor), ceiling))
 
 
-def sweep(problem: Problem, labels: np.ndarray, settings: SolverSettings | None = None
-          ) -> np.ndarray:
+def sweep(problem: Problem, labels: np.ndarray, settings: SolverSettings | None = None,
+          deadline: float | None = None) -> np.ndarray:
     """Alpha-expansions until no move lowers the energy; labels are tried best-first.
 
     Every label in use is expanded each pass. An unused label is expanded only while its gain
@@ -110,11 +110,14 @@ def sweep(problem: Problem, labels: np.ndarray, settings: SolverSettings | None 
     rewards (negative Potts weights) of the pairs it would split (:func:`_gain_bound`). A cheap
     screen that skips the many proposals that cannot pay for themselves, so a sweep costs a few
     moves, not one per proposal. At most ``settings.max_passes`` passes; a pass ends after
-    ``settings.max_failed`` unused labels in a row fail to lower the energy.
+    ``settings.max_failed`` unused labels in a row fail to lower the energy. Past the
+    ``deadline`` (a ``time.perf_counter()`` value) no further move starts once one has run,
+    unless every point is still an outlier.
     """
     settings = settings or SolverSettings()
     unary, costs = problem.unary, problem.label_costs
     current = energy(problem, labels)
+    moves = 0
     for _ in range(settings.max_passes):
         changed = False
         tried = np.zeros(unary.shape[0], dtype=bool)
@@ -129,7 +132,10 @@ def sweep(problem: Problem, labels: np.ndarray, settings: SolverSettings | None 
             alpha = int(np.argmax(gain))
             if not gain[alpha] > 0 or (failed >= settings.max_failed and not used[alpha]):
                 break
+            if moves and _past(deadline) and np.any(labels != problem.outlier_row):
+                return labels
             tried[alpha] = True
+            moves += 1
             moved = expansion_move(problem, labels, alpha)
             moved_energy = energy(problem, moved)
             if moved_energy < current - 1e-9:
@@ -303,9 +309,10 @@ def fit(
         first models, each refitted to its points, and the first labelling. The thesis' "mix the
         optimal models with a new batch of samples" across calls (Isack, sec. 2.3.3).
     deadline : float, optional
-        ``time.perf_counter()`` value after which no further expand / re-estimate iteration or
-        proposal round starts (the first one always runs). The result is then no longer a
-        function of the seed alone.
+        ``time.perf_counter()`` value after which no further alpha-expansion, split or merge
+        trial, expand / re-estimate iteration or proposal round starts; one expansion move
+        and one split trial always run, and more moves until a point has a model. Each model in use is still re-estimated once. The result is then no longer
+        a function of the seed alone.
     init_cost : float, cost units, >= 0
         With ``init``: a term ``init_cost * [f_p != init model of p]`` added to the energy for
         every point with an init segment, which keeps labels from flickering between calls
@@ -342,7 +349,7 @@ def fit(
         iterations += len(energies)
         # Segments of one motion that no expansion joins are merged once the round settles.
         with _timed(timings, 'refit'):
-            if _merge(search):
+            if _merge(search, deadline):
                 history.append(search.energy())
         search.compress()  # only the models in use go on (into the next round, the result)
     return PearlResult(np.where(search.labels == OUTLIER_ROW, OUTLIER, search.labels - 1),
@@ -355,8 +362,9 @@ def _descend(search: _Search, max_iterations: int, deadline: float | None,
     """Expand and re-estimate while the energy goes down: the inner loop of a round.
 
     Each iteration sweeps alpha-expansions over every label (:func:`sweep`), re-estimates the
-    models in use (:func:`_refit`) and tries split moves (:func:`_split`). Returns the energy
-    after each iteration run.
+    models in use (:func:`_refit`) and tries split moves (:func:`_split`). Past the
+    ``deadline``, the sweep and the split moves stop between moves, and no iteration starts
+    after the first. Returns the energy after each iteration run.
     """
     energies: list[float] = []
     current = search.energy()
@@ -364,10 +372,11 @@ def _descend(search: _Search, max_iterations: int, deadline: float | None,
         if step and _past(deadline):
             break
         with _timed(timings, 'expand'):
-            search.labels = sweep(search.problem, search.labels, search.setting.solver)
+            search.labels = sweep(search.problem, search.labels, search.setting.solver,
+                                  deadline)
         with _timed(timings, 'refit'):
             _refit(search)
-            _split(search)
+            _split(search, deadline)
         energies.append(search.energy())
         if not energies[-1] < current - 1e-9:
             break
@@ -609,7 +618,7 @@ def _refit(search: _Search) -> int:
     return refitted
 
 
-def _split(search: _Search) -> int:
+def _split(search: _Search, deadline: float | None = None) -> int:
     """Split moves: expansions judged after the models that lose points are refitted to what is
     left. Returns the moves kept.
 
@@ -617,10 +626,14 @@ def _split(search: _Search) -> int:
     rejected: the loose model keeps its noise level until it is refitted, so the points left to
     it still pay for it. Here the few most promising unused labels (:func:`_split_candidates`)
     are expanded, the losing models refitted, and the move kept only if the whole energy drops.
+    Past the ``deadline`` no trial starts but the first: the one that lets a budgeted stream
+    split a motion over its frames, one trial a frame.
     """
     kept = 0
     current = search.energy()
-    for alpha in _split_candidates(search):
+    for tried, alpha in enumerate(_split_candidates(search)):
+        if tried and _past(deadline):
+            break
         trial = _split_trial(search, alpha)
         if trial is not None and trial[2] < current - 1e-9:
             search.labels, refits, current = trial
@@ -685,7 +698,7 @@ def _split_trial(search: _Search, alpha: int
     return moved, refits, moved_energy
 
 
-def _merge(search: _Search) -> int:
+def _merge(search: _Search, deadline: float | None = None) -> int:
     """Merge moves: two neighbouring segments become one, its model refitted to both. Returns
     the merges made.
 
@@ -693,10 +706,10 @@ def _merge(search: _Search) -> int:
     points, and the model of their union is not among the proposals: one motion stays cut in
     two though one model of both lowers the energy. Each pair of segments that share a
     neighbour edge is tried, the larger keeping its label; the best merge that lowers the energy
-    is made (:func:`_best_merge`), and the pairs are tried again.
+    is made (:func:`_best_merge`), and the pairs are tried again, until the ``deadline``.
     """
     merges = 0
-    while (best := _best_merge(search)) is not None:
+    while not _past(deadline) and (best := _best_merge(search, deadline)) is not None:
         keep, drop, fitted = best
         search.labels = np.where(search.labels == drop, keep, search.labels)
         search.adopt(keep, fitted)
@@ -704,9 +717,11 @@ def _merge(search: _Search) -> int:
     return merges
 
 
-def _best_merge(search: _Search) -> tuple[int, int, _Refit] | None:
+def _best_merge(search: _Search, deadline: float | None = None
+                ) -> tuple[int, int, _Refit] | None:
     """The merge that lowers the energy most: the label kept, the label dropped and the kept
-    model's refit to both segments; None if no merge lowers it."""
+    model's refit to both segments; None if no merge lowers it. Past the ``deadline``, the
+    best of the pairs tried so far."""
     labels, unary, problem = search.labels, search.unary, search.problem
     p, q = problem.edges[:, 0], problem.edges[:, 1]
     a, b = labels[p], labels[q]
@@ -723,6 +738,8 @@ def _best_merge(search: _Search) -> tuple[int, int, _Refit] | None:
     best: tuple[int, int, _Refit] | None = None
     best_delta = -1e-9
     for (x, y), freed in zip(pairs, uncut, strict=True):
+        if _past(deadline):
+            break
         keep, drop = (x, y) if size[x] >= size[y] else (y, x)
         members = np.flatnonzero((labels == keep) | (labels == drop))
         fitted = _refit_one(search.setting, members, search.params[keep - 1])

@@ -89,6 +89,8 @@ class OnlineSegmenter:
         self._next_label = 0
         self._scales: dict[str, tuple[float, int]] = {}  # model -> (px, fitted frames since)
         self._quiet = 0  # warm fits since the last one with fresh proposals
+        self._owed = 0  # fresh proposals a budgeted cold start still owes, paid in slices
+        self._configs: tuple[tuple[str, float, str] | None, PearlConfig] = (None, self.config)
         self._energy_ref = 0.0  # energy per feature of that fit
         self._graph: tuple[str, Neighbourhood] | None = None  # model, last fit's neighbourhood
 
@@ -102,6 +104,7 @@ class OnlineSegmenter:
         self._label_of_track = {}
         self._scales = {}
         self._quiet = 0
+        self._owed = 0
         self._graph = None
 
     def reconfigure(self, config: PearlConfig | None = None,
@@ -110,6 +113,7 @@ class OnlineSegmenter:
         frames that fit."""
         if config is not None:
             self.config = config
+        self._configs = (None, self.config)
         if online is not None:
             self._window.resize(online.window)
             if online.seed != self.online.seed:
@@ -191,23 +195,29 @@ class OnlineSegmenter:
     def _fit(self, tracks: np.ndarray, keys: np.ndarray, model_name: str, prior: np.ndarray,
              warm: bool, start: float) -> np.ndarray:
         """Segment ``tracks`` (of the tracks ``keys``); returns 0..K-1 per track, -1 outliers."""
-        config = dataclasses.replace(self.config, model=model_name)
-        if not config.noise:
-            config = dataclasses.replace(config, noise=self._scale(tracks, config))
+        noise = self.config.noise or self._scale(tracks, model_name)
         init = None
-        if warm:
-            config = dataclasses.replace(config, num_proposals=self.online.warm_proposals,
-                                         rounds=self.online.warm_rounds,
-                                         unit_quantile=self.online.warm_unit_quantile)
-            _, init = np.unique(prior, return_inverse=True)
-            init = init.reshape(-1) - int(np.any(prior == OUTLIER))
         budget = self.online.budget_ms
         deadline = start + budget / 1e3 if budget > 0 else None
-        # Fresh proposals on a cold fit and on every propose_every-th warm one; the warm frames
-        # between only relabel and refit the motions already there, unless the energy per
-        # feature rose since the last proposals (a motion starting, say): then the next frame
-        # proposes.
-        propose = not warm or self._quiet + 1 >= self.online.propose_every
+        online = self.online
+        if warm:
+            config = self._config(model_name, noise, 'warm')
+            _, init = np.unique(prior, return_inverse=True)
+            init = init.reshape(-1) - int(np.any(prior == OUTLIER))
+        elif deadline is not None:
+            # A budgeted cold start draws a warm frame's slice of its proposals now and owes
+            # the rest to the frames that follow, one slice each: the budget bounds it too.
+            config = self._config(model_name, noise, 'slice')
+            self._owed = self.config.num_proposals * self.config.rounds - config.num_proposals
+        else:
+            config = self._config(model_name, noise, 'cold')
+        # Fresh proposals on a cold fit, on every propose_every-th warm one and while a cold
+        # start owes some; the warm frames between only relabel and refit the motions already
+        # there, unless the energy per feature rose since the last proposals (a motion
+        # starting, say): then the next frame proposes.
+        propose = not warm or self._quiet + 1 >= online.propose_every or self._owed > 0
+        if warm and propose:
+            self._owed = max(self._owed - config.num_proposals * config.rounds, 0)
         # The frames between proposals reuse the last frame's neighbour edges when the same
         # features are fitted (Delaunay and k-d tree: 2 ms of a 480-feature frame); a frame
         # with proposals builds them anew.
@@ -228,15 +238,35 @@ class OnlineSegmenter:
             self._quiet += 1
         return result.labels
 
-    def _scale(self, tracks: np.ndarray, config: PearlConfig) -> float:
-        """The noise scale of ``config.model``, estimated again every ``rescale_every`` frames
+    def _config(self, model_name: str, noise: float, kind: str) -> PearlConfig:
+        """The fit's configuration: ``self.config`` with ``model_name`` and ``noise``, and for a
+        ``kind`` of fit ``'warm'`` the warm-start settings, ``'slice'`` a budgeted cold start's
+        first slice of proposals, ``'cold'`` none. Kept until the next change: building and
+        checking one costs 0.5 ms, a frame's worth of warm fit."""
+        key = (model_name, noise, kind)
+        if self._configs[0] != key:
+            config = dataclasses.replace(self.config, model=model_name, noise=noise)
+            online = self.online
+            if kind == 'warm':
+                config = dataclasses.replace(config, num_proposals=online.warm_proposals,
+                                             rounds=online.warm_rounds,
+                                             unit_quantile=online.warm_unit_quantile)
+            elif kind == 'slice':
+                config = dataclasses.replace(config, rounds=1, num_proposals=min(
+                    config.num_proposals, online.warm_proposals))
+            self._configs = (key, config)
+        return self._configs[1]
+
+    def _scale(self, tracks: np.ndarray, model_name: str) -> float:
+        """The noise scale of ``model_name``, estimated again every ``rescale_every`` frames
         (solver settings): it changes slowly, and estimating it costs more than a warm-started
         fit."""
-        every = config.solver.rescale_every
-        scale, age = self._scales.get(config.model, (0.0, every))
+        every = self.config.solver.rescale_every
+        scale, age = self._scales.get(model_name, (0.0, every))
         if age >= every:
+            config = dataclasses.replace(self.config, model=model_name)
             scale, age = noise_scale(tracks, config, self._rng), 0
-        self._scales[config.model] = (scale, age + 1)
+        self._scales[model_name] = (scale, age + 1)
         return scale
 
     def _identify(self, segments: np.ndarray, prior: np.ndarray) -> np.ndarray:

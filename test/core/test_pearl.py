@@ -205,15 +205,37 @@ def test_a_negative_init_cost_is_rejected(affine_scene):
 
 
 def test_a_passed_deadline_stops_after_the_first_iteration(affine_scene):
-    # The first expand / re-estimate iteration always runs, so a deadline already passed gives
-    # one iteration and one proposal round, and still a labelling of every point.
+    # Past the deadline, one iteration runs: expansions until some point has a model, one
+    # split trial, no merges; the result still labels every point.
     tracks, truth = affine_scene(sizes=(120, 90), noise=0.5, seed=8)
     late = fit(tracks, rng=0, deadline=0.0)
     free = fit(tracks, rng=0)
     assert late.iterations == 1 and len(late.energy_history) == 1
     assert free.iterations > 1
     assert late.labels.shape == truth.shape
+    assert np.any(late.labels != OUTLIER)
     assert late.energy >= free.energy - 1e-6
+
+
+def test_a_passed_deadline_bounds_a_warm_fit_to_one_move_and_one_split_trial(affine_scene,
+                                                                              monkeypatch):
+    # The bound that keeps a budgeted frame short: started warm, a fit past its deadline runs
+    # one alpha-expansion in the sweep and one in a split trial, however many labels it has.
+    tracks, truth = affine_scene(sizes=(120, 90, 80), noise=0.5, seed=3)
+    moves = []
+    real = pearl.expansion_move
+
+    def counted(*args):
+        moves.append(args[2])
+        return real(*args)
+
+    monkeypatch.setattr(pearl, 'expansion_move', counted)
+    fit(tracks, rng=0, init=truth)
+    unbounded = len(moves)
+    moves.clear()
+    late = fit(tracks, rng=0, init=truth, deadline=0.0)
+    assert 1 <= len(moves) <= 2 < unbounded
+    assert late.labels.shape == truth.shape
 
 
 def test_without_proposals_a_warm_start_keeps_its_models(affine_scene):
@@ -264,7 +286,7 @@ def test_merge_moves_join_two_halves_of_one_body(seed, monkeypatch):
     assert merged.energy == pytest.approx(history[-1], rel=1e-9)
     assert merged.energy == pytest.approx(evaluate_segmentation(tracks, one, rng=0)[0], rel=1e-9)
     # ... and expansions alone do not: neither half's model fits the other half.
-    monkeypatch.setattr(pearl, '_merge', lambda search: 0)
+    monkeypatch.setattr(pearl, '_merge', lambda search, deadline=None: 0)
     assert fit(tracks, rng=0, init=halves, propose=False).num_models == 2
 
 

@@ -269,3 +269,41 @@ def test_reconfigure_applies_a_smaller_window_from_the_next_frame():
     assert seg.frames_in_window == 4
     result = seg.process(frames[-1].stamp_ns, frames[-1].ids, frames[-1].uv)
     assert result.frames <= 4
+
+
+def test_a_budget_smaller_than_any_frame_still_converges_one_slice_a_frame():
+    # With a budget no frame can meet, every frame does the least work: one expansion, one
+    # split trial, a slice of the cold start's proposals. Spread over frames, that work still
+    # finds both objects; the unbudgeted run is the reference.
+    frames = list(synthetic_stream(300, 40, (BodySpec(0.2), BodySpec(0.15)), seed=0))
+    starved = OnlineSegmenter(online=dataclasses.replace(UNTIMED, budget_ms=1e-6))
+    _, starved_results = run(frames, starved)
+    _, free_results = run(frames)
+    for results in (starved_results, free_results):
+        assert results[-1].motions == 3
+        assert misclassification(results[-1].labels, frames[-1].truth) < 0.02
+
+
+def test_a_budgeted_cold_start_owes_its_proposals_to_the_next_frames(monkeypatch):
+    # Unbudgeted, the cold fit draws num_proposals in each of its rounds; budgeted, it draws a
+    # warm frame's slice, and the frames after it draw fresh proposals until the whole count
+    # is drawn (fit's propose flag), whatever propose_every says.
+    from pearl_ros.online import segmenter as module
+
+    drawn = []
+    real = module.fit
+
+    def spy(tracks, config, rng, **kwargs):
+        drawn.append(config.num_proposals * config.rounds if kwargs['propose'] else 0)
+        return real(tracks, config, rng, **kwargs)
+
+    monkeypatch.setattr(module, 'fit', spy)
+    frames = list(synthetic_stream(150, 40, (BodySpec(0.3),), seed=2))
+    online = dataclasses.replace(UNTIMED, budget_ms=1e-6, propose_every=1000)
+    run(frames, OnlineSegmenter(online=online))
+    config = PearlConfig()
+    total = config.num_proposals * config.rounds
+    slices = -(-total // online.warm_proposals)  # frames that draw until the total is drawn
+    assert drawn[0] == online.warm_proposals
+    assert sum(drawn[:slices]) >= total
+    assert all(drawn[:slices])
