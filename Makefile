@@ -87,7 +87,8 @@ bench: venv
 
 # End-to-end latency of pearl_node at 30 Hz with 300 features (in-process).
 bench-node: venv
-	$(ROS_ENV) $(BIN)/pearl_node_bench --features 300 --rate 30 --frames 300
+	$(ROS_ENV) $(BIN)/pearl_node_bench --features 300 500 1000 2000@10 --rate 30 --frames 300 \
+		--set window=10
 
 clean:
 	rm -rf $(VENV) build *.egg-info

@@ -460,16 +460,39 @@ def _build_parser() -> argparse.ArgumentParser:
                         help='override a PearlConfig or OnlineConfig field (repeatable)')
     latency = commands.add_parser(
         'latency',
-        help='per-frame latency and peak memory on synthetic streams',
-        description='Synthetic streams of 100 / 300 / 1000 features with births and deaths, '
-        'windows of 5 / 10 / 20 frames: latency percentiles and peak memory per size.',
+        help='per-frame latency of the online segmenter at a frame rate, by size',
+        description='Streams of 300 / 500 / 1000 / 2000 features (ground truth known) arrive '
+        'at --rate Hz on a simulated clock and go through the online segmenter, one frame at a '
+        'time: a frame waits while an earlier one is processed, and that wait is part of its '
+        'latency. Per size: p50 / p95 / p99 / max latency, the share of frames over the frame '
+        'period, frames dropped by the queue policy, the misclassification, and a floor row '
+        '(the sliding window alone) for the same frames.',
     )
     latency.add_argument('--frames', type=int, default=60, help='frames per stream')
-    latency.add_argument('--features', type=int, nargs='+', default=[100, 300, 1000])
-    latency.add_argument('--windows', type=int, nargs='+', default=[5, 10, 20])
+    latency.add_argument('--features', nargs='+', default=None, metavar='N[@HZ]',
+                         help='features per frame, one run each; N@HZ runs that size at HZ '
+                         'instead of --rate (2000@10: 2000 features at 10 Hz); default '
+                         '300 500 1000 2000, 500 with --profile')
+    latency.add_argument('--windows', type=int, nargs='+', default=[10], metavar='W',
+                         help='window sizes, frames (default 10)')
+    latency.add_argument('--rate', type=float, default=30.0, metavar='HZ',
+                         help='frame rate, Hz: frames arrive every 1/HZ s (default 30)')
+    latency.add_argument('--queue', choices=('all', 'newest'), default='all',
+                         help='frames that arrive while one is processed: all waits its turn '
+                         '(default), newest: only the newest is processed, the rest dropped')
+    latency.add_argument('--stream', choices=('robot', 'synthetic'), default='robot',
+                         help='robot: moving camera, parallax, cars and a person, 10%% outlier '
+                         'tracks (default); synthetic: rigid 2-D motions with births and deaths')
     latency.add_argument('--scene-seeds', type=int, nargs='+', default=[0], metavar='SEED',
-                         help='seeds of the synthetic scenes: one stream per seed, size and '
+                         help='seeds of the streams: one stream per seed, size and '
                          'window (default 0)')
+    latency.add_argument('--memory', action='store_true',
+                         help='also measure the peak MiB the segmenter allocates (one more '
+                         'unpaced run per stream, under tracemalloc)')
+    latency.add_argument('--profile', action='store_true',
+                         help='profile one size (one --features, one --windows) with cProfile '
+                         'over the frames after the window fills, instead of timing: top 25 '
+                         'functions by cumulative and by own time')
     latency.add_argument('--set', action='append', default=[], metavar='NAME=VALUE',
                          help='override a PearlConfig or OnlineConfig field (repeatable)')
     from pearl_ros.cli import bench_sets
@@ -509,23 +532,38 @@ def _stream(args: argparse.Namespace) -> int:
 
 
 def _latency(args: argparse.Namespace) -> int:
-    from pearl_ros.cli.bench_stream import format_latency, latency_one
+    from pearl_ros.cli import bench_stream
 
-    _, config, online = _online_configs(args.set)
+    overrides, config, online = _online_configs(args.set)
     if min(args.scene_seeds) < 0:
         raise InputError(f'--scene-seeds must be >= 0, got {min(args.scene_seeds)}')
+    if not 0 < args.rate < math.inf:
+        raise InputError(f'--rate must be > 0 Hz, got {args.rate:g}')
+    tokens = args.features or (['500'] if args.profile else ['300', '500', '1000', '2000'])
+    sizes = [bench_stream.parse_size(token, args.rate) for token in tokens]
+    if min(args.windows) < 2 or args.frames <= max(args.windows):
+        raise InputError('need windows >= 2 and frames > window')
+    if args.profile:
+        if len(sizes) > 1 or len(args.windows) > 1:
+            raise InputError('--profile runs one size: give one --features and one --windows')
+        print(bench_stream.profile_one(sizes[0][0], args.windows[0], args.frames, config,
+                                       online, args.scene_seeds[0], stream=args.stream))
+        return 0
     rows = []
-    for features in args.features:
+    for features, rate in sizes:
         for window in args.windows:
-            if features < 10 or window < 2 or args.frames <= window:
-                raise InputError('need features >= 10, windows >= 2 and frames > window')
             for scene in args.scene_seeds:
-                sys.stderr.write(f'\rlatency: {features} features, W={window}, scene {scene}   ')
-                rows.append(latency_one(features, window, args.frames, config, online,
-                                        seed=scene))
+                sys.stderr.write(f'\rlatency: {features} features at {rate:g} Hz, W={window}, '
+                                 f'scene {scene}   ')
+                rows += bench_stream.latency_rows(
+                    features, window, args.frames, config, online, scene, rate_hz=rate,
+                    queue=args.queue, stream=args.stream, memory=args.memory)
     sys.stderr.write('\n')
-    print(format_latency(rows, f'Online PEaRL latency on synthetic streams ({args.frames} '
-                               f'frames, births and deaths, budget {online.budget_ms:g} ms)'))
+    title = (f'Online PEaRL latency, {args.stream} streams of {args.frames} frames paced at '
+             f'their rate, queue {args.queue}, budget {online.budget_ms:g} ms')
+    if overrides:
+        title += ', ' + ', '.join(f'{k}={v}' for k, v in overrides.items())
+    print(bench_stream.format_latency(rows, title))
     return 0
 
 

@@ -3,7 +3,8 @@
 ``stream`` feeds every Hopkins155 sequence (Tron & Vidal, CVPR 2007) frame by frame, at 30 Hz
 stamps, through :class:`~pearl_ros.online.segmenter.OnlineSegmenter`, exactly as the node does,
 and measures the labels of every frame against the ground truth. ``latency`` times synthetic
-streams with births and deaths at several sizes.
+streams at several sizes, paced at a frame rate on a simulated clock (:func:`paced`), and
+profiles one (:func:`profile_one`).
 """
 
 from __future__ import annotations
@@ -13,14 +14,14 @@ import math
 import statistics
 import time
 import tracemalloc
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
 from pearl_ros.core.config import PearlConfig
-from pearl_ros.core.errors import PearlError
+from pearl_ros.core.errors import InputError, PearlError
 from pearl_ros.online.config import OnlineConfig
 
 FRAME_NS = 33_333_333
@@ -137,64 +138,306 @@ def format_stream(rows: Sequence[StreamRow], title: str) -> str:
     return '\n'.join(lines)
 
 
+# ----------------------------------------------------------------------------- latency
+
+STREAMS = ('robot', 'synthetic')
+QUEUES = ('all', 'newest')
+KINDS = ('floor', 'pearl')  # pearl_bench latency rows: the window alone, the segmenter
+
+
+def parse_size(token: str, rate_hz: float) -> tuple[int, float]:
+    """``'500'`` -> (500, ``rate_hz``); ``'2000@10'`` -> (2000, 10.0): features per frame and
+    the frame rate (Hz) of one benchmark size. InputError on anything else."""
+    features, _, rate = token.partition('@')
+    try:
+        size = (int(features), float(rate) if rate else float(rate_hz))
+    except ValueError:
+        raise InputError(f'a size is FEATURES or FEATURES@HZ (such as 2000@10), got '
+                         f'{token!r}') from None
+    if size[0] < 10 or not 0 < size[1] < math.inf:
+        raise InputError(f'a size needs >= 10 features and a rate > 0 Hz, got {token!r}')
+    return size
+
+
+def make_stream(kind: str, features: int, frames: int, seed: int) -> list[Any]:
+    """The frames of a benchmark stream with ground truth (``StreamFrame`` each), 30 Hz stamps.
+
+    ``'robot'``: :func:`pearl_ros.datasets.robot.robot_stream` (a moving camera, parallax, two
+    cars and a person, 10 % outlier tracks, births and deaths). ``'synthetic'``:
+    :func:`pearl_ros.datasets.synthetic.synthetic_stream` with an object that starts a third of
+    the way in and one that stops half way.
+    """
+    if kind == 'robot':
+        from pearl_ros.datasets.robot import robot_stream
+
+        return list(robot_stream(features, frames, seed=seed))
+    from pearl_ros.datasets.synthetic import BodySpec, synthetic_stream
+
+    objects = (BodySpec(0.2), BodySpec(0.15, start=frames // 3), BodySpec(0.15, stop=frames // 2))
+    return list(synthetic_stream(features, frames, objects, seed=seed))
+
+
+@dataclass(frozen=True)
+class LatencyStats:
+    """Latency of the answered frames of a run, and how many were not answered.
+
+    Attributes
+    ----------
+    sent, answered : int, frames
+    p50, p95, p99, max : float, ms, over the answered frames (NaN when none was)
+    over_pct : float, percent of the answered frames whose latency exceeds ``period_ms``
+    period_ms : float, ms, the frame period
+    """
+
+    sent: int
+    answered: int
+    p50: float
+    p95: float
+    p99: float
+    max: float
+    over_pct: float
+    period_ms: float
+
+    @property
+    def ratio(self) -> float:
+        """p99 / p50, how much worse the worst frames are than the typical one."""
+        return self.p99 / self.p50 if self.p50 > 0 else math.nan
+
+
+def latency_stats(latencies_ms: Sequence[float], sent: int, period_ms: float) -> LatencyStats:
+    """:class:`LatencyStats` of ``latencies_ms`` (one per answered frame) out of ``sent``."""
+    values = np.asarray(latencies_ms, dtype=np.float64)
+    cut = percentiles(values.tolist())
+    over = 100.0 * float(np.mean(values > period_ms)) if values.size else math.nan
+    return LatencyStats(sent, int(values.size), cut['p50'], cut['p95'], cut['p99'], cut['max'],
+                        over, period_ms)
+
+
+def accuracy(labels: dict[int, np.ndarray], truth: Sequence[np.ndarray]) -> tuple[float, float]:
+    """Misclassification in percent: ``(mean, final)``.
+
+    ``labels`` maps a frame's index to its labels (answered frames only); ``truth`` holds every
+    frame's. The mean is over the answered frames among the last three quarters of the stream
+    (the first quarter is the warm-up), the final one that of the last answered frame. NaN
+    when no frame qualifies.
+    """
+    from pearl_ros.core.metrics import misclassification
+
+    if not labels:
+        return math.nan, math.nan
+    settled = [misclassification(labels[i], truth[i]) for i in sorted(labels)
+               if i >= len(truth) // 4]
+    final = misclassification(labels[max(labels)], truth[max(labels)])
+    return (100.0 * statistics.fmean(settled) if settled else math.nan), 100.0 * final
+
+
+@dataclass(frozen=True)
+class Schedule:
+    """When each frame of a paced run was processed.
+
+    Attributes
+    ----------
+    processed : tuple of int, frame indices in the order processed
+    start_s, finish_s : tuple of float, s, per processed frame, on the arrivals' clock
+    latency_s : tuple of float, s, finish minus arrival, per processed frame
+    dropped : tuple of int, frames never processed (``queue='newest'``)
+    """
+
+    processed: tuple[int, ...]
+    start_s: tuple[float, ...]
+    finish_s: tuple[float, ...]
+    latency_s: tuple[float, ...]
+    dropped: tuple[int, ...]
+
+
+def paced(arrivals_s: Sequence[float], work: Callable[[int], float], queue: str = 'all'
+          ) -> Schedule:
+    """Run frames that arrive at ``arrivals_s`` through one worker, on a simulated clock.
+
+    Frame ``i`` is processed by ``work(i)``, which returns how long it took (s); the worker
+    starts it at the later of its arrival and the end of the previous frame, so a frame's
+    latency (finish minus arrival) includes the time it waited behind slower ones, as on a
+    robot. Nothing sleeps: the clock advances by the durations ``work`` reports.
+
+    Parameters
+    ----------
+    arrivals_s : sequence of float, s, non-decreasing
+    work : callable, frame index -> seconds it took; called once per processed frame, in order
+    queue : 'all' (every frame, in order) or 'newest' (when the worker frees up, it takes the
+        newest frame that has arrived and drops the older ones waiting)
+    """
+    if queue not in QUEUES:
+        raise InputError(f'queue must be one of {", ".join(QUEUES)}, got {queue!r}')
+    processed: list[int] = []
+    start: list[float] = []
+    finish: list[float] = []
+    dropped: list[int] = []
+    free = -math.inf  # when the worker is next free
+    i, count = 0, len(arrivals_s)
+    while i < count:
+        begin = max(arrivals_s[i], free)
+        take = i
+        if queue == 'newest':
+            while take + 1 < count and arrivals_s[take + 1] <= begin:
+                take += 1
+            dropped.extend(range(i, take))
+        free = begin + work(take)
+        processed.append(take)
+        start.append(begin)
+        finish.append(free)
+        i = take + 1
+    latency = tuple(f - arrivals_s[p] for p, f in zip(processed, finish, strict=True))
+    return Schedule(tuple(processed), tuple(start), tuple(finish), latency, tuple(dropped))
+
+
 @dataclass(frozen=True)
 class LatencyRow:
+    """One ``pearl_bench latency`` row: a size run paced through the floor or the segmenter.
+
+    ``kind`` is ``'floor'`` (the sliding window alone: ``push`` and ``history``, what every
+    frame costs before any segmentation) or ``'pearl'`` (:class:`OnlineSegmenter`).
+    ``peak_mib`` is NaN unless measured (``memory``); ``mean_pct`` and ``final_pct`` as
+    :func:`accuracy` (NaN for the floor, which labels nothing).
+    """
+
+    kind: str
     features: int
     window: int
     frames: int
-    scene: int  # seed of the synthetic scene (generator)
-    latency_ms: dict[str, float]
+    scene: int  # seed of the stream
+    rate_hz: float
+    stats: LatencyStats
+    dropped: int
     peak_mib: float
+    mean_pct: float
     final_pct: float
-    mean_pct: float  # misclassification over the frames after the window first fills
 
 
-def latency_one(features: int, window: int, frames: int, config: PearlConfig,
-                online: OnlineConfig, seed: int = 0) -> LatencyRow:
-    """Time a synthetic stream (an object that starts mid-stream, one that stops, births and
-    deaths; ``seed`` draws the scene) and measure the peak memory the segmenter allocates while
-    it runs."""
-    from pearl_ros.core.metrics import misclassification
-    from pearl_ros.datasets.synthetic import BodySpec, synthetic_stream
+def latency_rows(features: int, window: int, frames: int, config: PearlConfig,
+                 online: OnlineConfig, seed: int = 0, *, rate_hz: float = 30.0,
+                 queue: str = 'all', stream: str = 'robot', memory: bool = False
+                 ) -> list[LatencyRow]:
+    """The floor and segmenter rows of one stream, paced at ``rate_hz`` (:func:`paced`).
+
+    With ``memory``, the segmenter runs once more, unpaced, under ``tracemalloc`` for its peak
+    allocation (not while timing: its hooks slow allocation down).
+    """
     from pearl_ros.online.segmenter import OnlineSegmenter
+    from pearl_ros.online.window import SlidingWindow
 
-    objects = (BodySpec(0.2), BodySpec(0.15, start=frames // 3), BodySpec(0.15, stop=frames // 2))
-    stream = list(synthetic_stream(features, frames, objects, seed=seed))
-    segmenter = OnlineSegmenter(config, dataclasses.replace(online, window=window))
+    frames_ = make_stream(stream, features, frames, seed)
+    arrivals = [i / rate_hz for i in range(len(frames_))]
+    online = dataclasses.replace(online, window=window)
+    slider = SlidingWindow(window)
+
+    def floor(i: int) -> float:
+        frame = frames_[i]
+        begin = time.perf_counter()
+        slider.history(slider.push(frame.stamp_ns, frame.ids, frame.uv))
+        return time.perf_counter() - begin
+
+    segmenter = OnlineSegmenter(config, online)
+    labels: dict[int, np.ndarray] = {}
+
+    def segment(i: int) -> float:
+        frame = frames_[i]
+        begin = time.perf_counter()
+        labels[i] = segmenter.process(frame.stamp_ns, frame.ids, frame.uv).labels
+        return time.perf_counter() - begin
+
+    peak = math.nan
+    if memory:
+        peak = _peak_mib(OnlineSegmenter(config, online), frames_)
+    rows = []
+    for kind, work in (('floor', floor), ('pearl', segment)):
+        run = paced(arrivals, work, queue)
+        stats = latency_stats([1e3 * s for s in run.latency_s], len(frames_), 1e3 / rate_hz)
+        mean, final = (accuracy(labels, [f.truth for f in frames_]) if kind == 'pearl'
+                       else (math.nan, math.nan))
+        rows.append(LatencyRow(kind, features, window, len(frames_), seed, rate_hz, stats,
+                               len(run.dropped), peak if kind == 'pearl' else math.nan,
+                               mean, final))
+    return rows
+
+
+def _peak_mib(segmenter: Any, frames: Sequence[Any]) -> float:
+    """Peak MiB ``tracemalloc`` sees while ``segmenter`` processes ``frames``."""
     tracemalloc.start()
     try:
-        for _ in _timed(segmenter, stream):
-            pass
-        peak = tracemalloc.get_traced_memory()[1]
+        for frame in frames:
+            segmenter.process(frame.stamp_ns, frame.ids, frame.uv)
+        return tracemalloc.get_traced_memory()[1] / 2**20
     finally:
         tracemalloc.stop()
-    # Timing again without tracemalloc, whose hooks slow allocation-heavy code down.
-    segmenter = OnlineSegmenter(config, dataclasses.replace(online, window=window))
-    latencies, errors = [], []
-    for (ms, result), frame in zip(_timed(segmenter, stream), stream, strict=True):
-        latencies.append(ms)
-        errors.append(misclassification(result.labels, frame.truth))
-    return LatencyRow(features, window, frames, seed, percentiles(latencies[window:]),
-                      peak / 2**20, 100.0 * errors[-1],
-                      100.0 * statistics.fmean(errors[window:] or errors))
 
 
-def _timed(segmenter: Any, stream: Sequence[Any]) -> Iterator[tuple[float, Any]]:
-    """``(latency ms, FrameResult)`` of each frame of ``stream`` through ``segmenter``."""
-    for frame in stream:
-        start = time.perf_counter()
-        result = segmenter.process(frame.stamp_ns, frame.ids, frame.uv)
-        yield 1e3 * (time.perf_counter() - start), result
+def _cell(value: float, spec: str, width: int) -> str:
+    return f'{"-":>{width}}' if math.isnan(value) else f'{value:{width}{spec}}'
 
 
 def format_latency(rows: Sequence[LatencyRow], title: str) -> str:
-    lines = [title, '', f'{"features":>8} {"W":>3} {"frames":>6} {"scene":>5} {"p50 ms":>7} '
-             f'{"p95 ms":>7} {"p99 ms":>7} {"max ms":>7} {"peak MiB":>8} {"final err %":>11} '
-             f'{"mean err %":>10}']
+    """The ``pearl_bench latency`` table: one line per row, a legend below."""
+    lines = [title, '', f'{"kind":<5} {"features":>8} {"Hz":>4} {"W":>3} {"scene":>5} '
+             f'{"answered":>9} {"p50 ms":>7} {"p95 ms":>7} {"p99 ms":>7} {"max ms":>7} '
+             f'{"over %":>6} {"p99/p50":>7} {"peak MiB":>8} {"mean err %":>10} '
+             f'{"final err %":>11}']
     for r in rows:
-        lat: dict[str, Any] = r.latency_ms
-        lines.append(f'{r.features:>8} {r.window:>3} {r.frames:>6} {r.scene:>5} {lat["p50"]:7.1f} '
-                     f'{lat["p95"]:7.1f} {lat["p99"]:7.1f} {lat["max"]:7.1f} {r.peak_mib:8.1f} '
-                     f'{r.final_pct:11.2f} {r.mean_pct:10.2f}')
-    lines.append('(latency and mean error over the frames after the window first fills)')
+        s = r.stats
+        lines.append(
+            f'{r.kind:<5} {r.features:>8} {r.rate_hz:>4g} {r.window:>3} {r.scene:>5} '
+            f'{f"{s.answered}/{s.sent}":>9} {_cell(s.p50, ".1f", 7)} {_cell(s.p95, ".1f", 7)} '
+            f'{_cell(s.p99, ".1f", 7)} {_cell(s.max, ".1f", 7)} {_cell(s.over_pct, ".1f", 6)} '
+            f'{_cell(s.ratio, ".2f", 7)} {_cell(r.peak_mib, ".1f", 8)} '
+            f'{_cell(r.mean_pct, ".2f", 10)} {_cell(r.final_pct, ".2f", 11)}')
+    lines += [
+        'kind: floor = the sliding window alone (push + history), pearl = OnlineSegmenter.',
+        'Frames arrive every 1/Hz s (simulated clock); latency = finish - arrival, waiting',
+        'included; answered = frames processed, the rest dropped by the queue policy.',
+        'over %: answered frames whose latency exceeds the frame period. mean err %:',
+        'misclassification over the last three quarters of the frames; final: last answered.',
+    ]
     return '\n'.join(lines)
+
+
+# ----------------------------------------------------------------------------- profile
+
+
+def profile_one(features: int, window: int, frames: int, config: PearlConfig,
+                online: OnlineConfig, seed: int = 0, *, stream: str = 'robot',
+                top: int = 25) -> str:
+    """pstats of the segmenter on one stream, restricted to the frames after the window fills:
+    the ``top`` functions by cumulative time, then by own time."""
+    import cProfile
+    import io
+    import pstats
+
+    from pearl_ros.online.segmenter import OnlineSegmenter
+
+    frames_ = make_stream(stream, features, frames, seed)
+    segmenter = OnlineSegmenter(config, dataclasses.replace(online, window=window))
+    for frame in frames_[:window]:
+        segmenter.process(frame.stamp_ns, frame.ids, frame.uv)
+    profiler = cProfile.Profile()
+    profiler.enable()
+    for frame in frames_[window:]:
+        segmenter.process(frame.stamp_ns, frame.ids, frame.uv)
+    profiler.disable()
+    out = io.StringIO()
+    stats = pstats.Stats(profiler, stream=out)
+    for order, what in (('cumulative', 'cumulative time'), ('tottime', 'own time')):
+        out.write(f'Top {top} functions by {what}, frames {window}-{len(frames_) - 1} '
+                  f'({len(frames_) - window} frames after the window fills)\n')
+        stats.sort_stats(order).print_stats(top)
+    return _short_paths(out.getvalue())
+
+
+def _short_paths(text: str) -> str:
+    """File names from their package on (``pearl_ros/core/pearl.py``, ``numpy/...``)."""
+    import os
+
+    import pearl_ros
+
+    for package in (pearl_ros, np):
+        root = os.path.dirname(os.path.dirname(os.path.abspath(str(package.__file__))))
+        text = text.replace(root + os.sep, '')
+    return text

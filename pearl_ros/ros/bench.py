@@ -1,24 +1,35 @@
 """``pearl_node_bench``: end-to-end latency of ``pearl_node``, publish -> labels received.
 
-A benchmark, not a test. One process, one single-threaded executor: a publisher node sends a
-synthetic stream (:func:`pearl_ros.datasets.synthetic.synthetic_stream`, ground truth known) as
-VINS-Mono PointClouds on a 30 Hz timer, ``pearl_node`` segments it, and the publisher's
-subscription stamps each ``motion_labels`` on arrival. The latency of a frame is arrival minus
-publication (monotonic clock); a frame the node is still busy with when the next one is due
-waits, and that wait is part of its successor's latency, as on a robot.
+A benchmark, not a test. One process, one single-threaded executor: a source node publishes a
+stream with ground truth (:func:`pearl_ros.cli.bench_stream.make_stream`: by default the
+robot-like stream, a moving camera with cars, a person and outlier tracks) as VINS-Mono
+PointClouds at a fixed rate, the node under test answers each with ``motion_labels``, and the
+source stamps each answer on arrival.
+
+Frame ``i`` is due at ``start + i / rate`` (monotonic clock), as from a tracker in its own
+process. Between two callbacks of the executor the source publishes every frame that has come
+due, so a frame that came due while the node was busy is published as soon as the node returns,
+and its latency, counted from when it was due, includes that wait, as on a robot. Frames the node
+never answers (its input queue dropped them, or its queue policy) are counted, not timed.
+
+For each size the same frames go first through a no-op node (:class:`NoopNode`: it decodes each
+message with the node's decoder and answers ``motion_labels`` with every label -1, the floor of
+transport, decoding and encoding), then through ``pearl_node``.
 
 Example::
 
-    pearl_node_bench --features 300 --rate 30 --frames 300
+    pearl_node_bench --features 300 500 1000 2000@10 --rate 30 --frames 300 --set window=10
 """
 
 from __future__ import annotations
 
 import argparse
+import math
 import os
 import sys
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -33,12 +44,16 @@ from sensor_msgs.msg import ChannelFloat32, PointCloud, PointCloud2
 from std_msgs.msg import Header
 
 from pearl_ros.bagio import decode, encode
+from pearl_ros.cli import bench_stream
 from pearl_ros.core.errors import InputError
-from pearl_ros.core.metrics import misclassification
-from pearl_ros.datasets.synthetic import synthetic_stream
-from pearl_ros.pipeline import settings
-from pearl_ros.ros.node import PearlNode
+from pearl_ros.pipeline import settings as pipeline_settings
+from pearl_ros.pipeline.messages import MessagePipeline, Skipped
+from pearl_ros.ros import convert
+from pearl_ros.ros.node import OUTPUT_DEPTH, PearlNode, input_qos
 from pearl_ros.ros.play import spin_until
+
+KINDS = ('no-op', 'pearl_node')
+QUIET_S = 3.0  # s without an answer after the last frame: the rest will not come
 
 
 def vins_mono_cloud(stamp_ns: int, ids: np.ndarray, uv: np.ndarray) -> PointCloud:
@@ -54,101 +69,219 @@ def vins_mono_cloud(stamp_ns: int, ids: np.ndarray, uv: np.ndarray) -> PointClou
     )
 
 
-class Source(Node):
-    """Publishes prepared messages on a timer and times the labels that come back."""
+class NoopNode(Node):
+    """The baseline: decodes each feature message as ``pearl_node`` does
+    (:meth:`MessagePipeline.read`) and publishes its ``motion_labels`` with every label -1,
+    on the same topics and QoS. Keyword arguments go to ``rclpy.node.Node``.
+    """
 
-    def __init__(self, messages: list[PointCloud], rate_hz: float, **kwargs: Any) -> None:
+    def __init__(self, settings: pipeline_settings.Settings, **kwargs: Any) -> None:
+        super().__init__('pearl_noop', **kwargs)
+        self._pipeline = MessagePipeline(settings, convert.TYPES)
+        node = settings.node
+        self.create_subscription(convert.MSG_CLASSES[node.msg_type], 'features',
+                                 self._on_features, input_qos(node.qos, node.qos_depth))
+        self._labels_pub = self.create_publisher(
+            PointCloud2, 'motion_labels',
+            QoSProfile(depth=OUTPUT_DEPTH, reliability=ReliabilityPolicy.RELIABLE))
+
+    def _on_features(self, msg: Any) -> None:
+        features = self._pipeline.read(msg)
+        if isinstance(features, Skipped):
+            return
+        ids, uv = features
+        labels = np.full(ids.size, encode.UNLABELLED, dtype=np.int64)
+        self._labels_pub.publish(encode.motion_labels(msg.header, ids, uv, labels,
+                                                      convert.TYPES))
+
+
+class Source(Node):
+    """Publishes prepared messages when they come due and times the labels that come back."""
+
+    def __init__(self, messages: list[Any], rate_hz: float, **kwargs: Any) -> None:
         super().__init__('pearl_node_bench', **kwargs)
         qos = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
         self.messages = messages
-        self.sent: dict[int, float] = {}  # stamp -> monotonic time published
-        self.latency: dict[int, float] = {}  # stamp -> s
+        self.period_s = 1.0 / rate_hz
+        self.index = {decode.stamp_ns(m.header): i for i, m in enumerate(messages)}
+        self.start = math.nan  # monotonic s when frame 0 is due
+        self.sent = 0
+        self.latency_s: dict[int, float] = {}  # frame index -> s
         self.labels: dict[int, np.ndarray] = {}
+        self.last_answer = math.nan
         self.publisher = self.create_publisher(PointCloud, 'features', qos)
         self.create_subscription(PointCloud2, 'motion_labels', self._on_labels, qos)
-        self.timer = self.create_timer(1.0 / rate_hz, self._tick)
-        self.timer.cancel()  # started once the node is matched
 
-    def _tick(self) -> None:
-        if len(self.sent) == len(self.messages):
-            self.timer.cancel()
-            return
-        msg = self.messages[len(self.sent)]
-        self.sent[decode.stamp_ns(msg.header)] = time.monotonic()
-        self.publisher.publish(msg)
+    def due(self, i: int) -> float:
+        """Monotonic s when frame ``i`` is due."""
+        return self.start + i * self.period_s
+
+    def publish_due(self) -> float:
+        """Publish every frame that has come due; s until the next one is (inf: none left)."""
+        now = time.monotonic()
+        while self.sent < len(self.messages) and self.due(self.sent) <= now:
+            self.publisher.publish(self.messages[self.sent])
+            self.sent += 1
+        return self.due(self.sent) - now if self.sent < len(self.messages) else math.inf
 
     def _on_labels(self, msg: PointCloud2) -> None:
         arrived = time.monotonic()
-        stamp = decode.stamp_ns(msg.header)
-        if stamp in self.sent:
-            self.latency[stamp] = arrived - self.sent[stamp]
-            self.labels[stamp] = decode.decode_fields(msg, ('label',))['label']
+        i = self.index.get(decode.stamp_ns(msg.header))
+        if i is not None and i < self.sent and i not in self.latency_s:
+            self.latency_s[i] = arrived - self.due(i)
+            self.labels[i] = decode.decode_fields(msg, ('label',))['label']
+            self.last_answer = arrived
+
+    def run(self, executor: SingleThreadedExecutor) -> None:
+        """Publish the frames on time while spinning; return when every frame was answered or
+        none came for :data:`QUIET_S` after the last was sent."""
+        self.start = time.monotonic()
+        while True:
+            wait = self.publish_due()
+            if wait == math.inf:
+                quiet_since = max(self.last_answer, self.due(len(self.messages) - 1))
+                if (len(self.latency_s) == len(self.messages)
+                        or time.monotonic() - quiet_since > QUIET_S):
+                    return
+            executor.spin_once(timeout_sec=max(0.0, min(wait, 0.05)))
 
 
-def main(argv: Sequence[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog='pearl_node_bench', description=__doc__.split('\n')[0])
-    parser.add_argument('--features', type=int, default=300, help='features per frame')
-    parser.add_argument('--rate', type=float, default=30.0, help='Hz, publication rate')
-    parser.add_argument('--frames', type=int, default=300, help='frames to publish')
-    parser.add_argument('--seed', type=int, default=0, help='seed of the synthetic stream')
-    parser.add_argument('--set', action='append', default=[], metavar='NAME=VALUE',
-                        help='a parameter of pearl_node, repeatable')
-    args = parser.parse_args(argv)
-    os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
-    try:
-        overrides = settings.parse_assignments(args.set)
-        settings.build(overrides)  # checked before ROS starts
-    except InputError as err:
-        print(f'error: {err}', file=sys.stderr)
-        return 1
+@dataclass(frozen=True)
+class Row:
+    """One line of the table: a node kind at one size."""
 
-    stream = list(synthetic_stream(num_features=args.features, frames=args.frames,
-                                   seed=args.seed))
-    messages = [vins_mono_cloud(f.stamp_ns, f.ids, f.uv) for f in stream]
-    truth = {f.stamp_ns: f.truth for f in stream}
+    kind: str
+    features: int
+    rate_hz: float
+    stats: bench_stream.LatencyStats
+    mean_pct: float
+    final_pct: float
 
-    rclpy.init(args=[])
+
+def run_row(kind: str, make_node: Callable[[str], Node], messages: list[Any],
+            truth: Sequence[np.ndarray], features: int, rate_hz: float, row: int) -> Row:
+    """Run ``messages`` through the node ``make_node(namespace)`` builds, in its own namespace.
+
+    Raises
+    ------
+    InputError
+        The node did not subscribe to the source within 10 s.
+    """
     executor = SingleThreadedExecutor()
-    ns = f'/pearl_bench_{os.getpid()}'
-    node = PearlNode(namespace=ns, parameter_overrides=[
-        Parameter(name, value=value) for name, value in overrides.items()])
-    source = Source(messages, args.rate, namespace=ns)
+    ns = f'/pearl_bench_{os.getpid()}_{row}'
+    node = make_node(ns)
+    source = Source(messages, rate_hz, namespace=ns)
     try:
         for item in (node, source):
             executor.add_node(item)
         if not spin_until(executor, lambda: source.publisher.get_subscription_count() > 0,
                           10.0):
-            print('error: the node did not subscribe', file=sys.stderr)
-            return 1
-        source.timer.reset()
-        spin_until(executor, lambda: len(source.latency) == len(messages),
-                   len(messages) / args.rate + 30.0)
+            raise InputError(f'the {kind} node did not subscribe')
+        source.run(executor)
+    finally:
+        for item in (node, source):
+            executor.remove_node(item)
+            item.destroy_node()
+        executor.shutdown()
+    latency_ms = [1e3 * source.latency_s[i] for i in sorted(source.latency_s)]
+    stats = bench_stream.latency_stats(latency_ms, len(messages), 1e3 / rate_hz)
+    mean, final = bench_stream.accuracy(source.labels, truth)
+    return Row(kind, features, rate_hz, stats, mean, final)
+
+
+def format_rows(rows: Sequence[Row], title: str) -> str:
+    """The table, then a legend."""
+    def cell(value: float, spec: str, width: int) -> str:
+        return f'{"-":>{width}}' if math.isnan(value) else f'{value:{width}{spec}}'
+
+    lines = [title, '', f'{"node":<10} {"features":>8} {"Hz":>4} {"answered":>9} {"p50 ms":>7} '
+             f'{"p99 ms":>7} {"max ms":>7} {"over %":>6} {"p99/p50":>7} {"mean err %":>10} '
+             f'{"final err %":>11}']
+    for r in rows:
+        s = r.stats
+        lines.append(f'{r.kind:<10} {r.features:>8} {r.rate_hz:>4g} '
+                     f'{f"{s.answered}/{s.sent}":>9} {cell(s.p50, ".1f", 7)} '
+                     f'{cell(s.p99, ".1f", 7)} {cell(s.max, ".1f", 7)} '
+                     f'{cell(s.over_pct, ".1f", 6)} {cell(s.ratio, ".2f", 7)} '
+                     f'{cell(r.mean_pct, ".2f", 10)} {cell(r.final_pct, ".2f", 11)}')
+    lines += [
+        'latency: labels received - frame due (waiting included), answered frames only.',
+        'over %: answered frames whose latency exceeds the frame period. no-op: decode and',
+        'answer all -1. mean err %: misclassification over the last three quarters of the',
+        'frames (answered ones); final: the last answered frame.',
+    ]
+    return '\n'.join(lines)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog='pearl_node_bench', description=__doc__.split('\n')[0])
+    parser.add_argument('--features', nargs='+', default=['300'], metavar='N[@HZ]',
+                        help='features per frame, one run each (default 300); N@HZ publishes '
+                        'that size at HZ instead of --rate (2000@10: 2000 features at 10 Hz)')
+    parser.add_argument('--rate', type=float, default=30.0, metavar='HZ',
+                        help='publication rate, Hz (default 30)')
+    parser.add_argument('--frames', type=int, default=300, help='frames per run (default 300)')
+    parser.add_argument('--seed', type=int, default=0, help='seed of the stream (default 0)')
+    parser.add_argument('--stream', choices=bench_stream.STREAMS, default='robot',
+                        help='robot: moving camera, parallax, cars and a person, 10%% outlier '
+                        'tracks (default); synthetic: rigid 2-D motions, births and deaths')
+    parser.add_argument('--set', action='append', default=[], metavar='NAME=VALUE',
+                        help='a parameter of pearl_node, repeatable (window=10, ...)')
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
+    try:
+        overrides = pipeline_settings.parse_assignments(args.set)
+        settings = pipeline_settings.build(overrides)  # checked before ROS starts
+        if not 0 < args.rate < math.inf:
+            raise InputError(f'--rate must be > 0 Hz, got {args.rate:g}')
+        if args.frames < 2:
+            raise InputError(f'--frames must be >= 2, got {args.frames}')
+        if settings.node.msg_type != 'PointCloud':
+            raise InputError('the benchmark publishes PointCloud: msg_type must stay PointCloud')
+        sizes = [bench_stream.parse_size(token, args.rate) for token in args.features]
+    except InputError as err:
+        print(f'error: {err}', file=sys.stderr)
+        return 1
+
+    rows: list[Row] = []
+    rclpy.init(args=[])
+    try:
+        for features, rate in sizes:
+            stream = bench_stream.make_stream(args.stream, features, args.frames, args.seed)
+            messages = [vins_mono_cloud(f.stamp_ns, f.ids, f.uv) for f in stream]
+            truth = [f.truth for f in stream]
+            makers: dict[str, Callable[[str], Node]] = {
+                'no-op': lambda ns: NoopNode(settings, namespace=ns),
+                'pearl_node': lambda ns: PearlNode(namespace=ns, parameter_overrides=[
+                    Parameter(name, value=value) for name, value in overrides.items()]),
+            }
+            for kind in KINDS:
+                sys.stderr.write(f'\r{kind}: {features} features at {rate:g} Hz   ')
+                rows.append(run_row(kind, makers[kind], messages, truth, features, rate,
+                                    len(rows)))
+        sys.stderr.write('\n')
+    except InputError as err:
+        print(f'\nerror: {err}', file=sys.stderr)
+        return 1
     except KeyboardInterrupt:
-        print('error: interrupted', file=sys.stderr)
+        print('\nerror: interrupted', file=sys.stderr)
         return 1
     finally:
-        executor.remove_node(node)
-        executor.remove_node(source)
-        node.destroy_node()
-        source.destroy_node()
         rclpy.try_shutdown()
 
-    latency_ms = np.array([source.latency[s] for s in source.sent if s in source.latency]) * 1e3
-    settled = list(source.labels)[len(source.labels) // 4:]  # skip the warm-up
-    errors = [misclassification(source.labels[s], truth[s]) for s in settled]
-    print(f'pearl_node end-to-end latency, publish -> motion_labels received '
-          f'({args.features} features, {args.rate:g} Hz, {len(messages)} frames, in-process)')
-    print(f'{"answered":>10} {"p50 ms":>8} {"p90 ms":>8} {"p99 ms":>8} {"max ms":>8} '
-          f'{"mean ms":>8} {"error":>7}')
-    if latency_ms.size == 0:
-        print('no frame answered')
+    title = (f'pearl_node end-to-end latency, frame due -> motion_labels received ({args.stream} '
+             f'stream, {args.frames} frames, seed {args.seed}, in-process')
+    title += ''.join(f', {k}={v}' for k, v in overrides.items()) + ')'
+    print(format_rows(rows, title))
+    silent = [f'{r.kind} at {r.features} features' for r in rows if r.stats.answered == 0]
+    if silent:
+        print(f'error: no frame answered by {", ".join(silent)}', file=sys.stderr)
         return 1
-    p50, p90, p99 = np.percentile(latency_ms, [50, 90, 99])
-    error = f'{100 * np.mean(errors):6.1f}%' if errors else '    n/a'
-    print(f'{latency_ms.size:>6}/{len(messages):<3} {p50:8.1f} {p90:8.1f} {p99:8.1f} '
-          f'{latency_ms.max():8.1f} {latency_ms.mean():8.1f} {error}')
-    print('error: mean misclassification of the last three quarters of the frames')
-    return 0 if latency_ms.size == len(messages) else 1
+    return 0
 
 
 if __name__ == '__main__':
