@@ -85,7 +85,8 @@ demo-video: venv
 bench: venv
 	$(BIN)/pearl_bench hopkins155 ../shared/data/hopkins155 --frames all
 
-# End-to-end latency of pearl_node at 30 Hz with 300 features (in-process).
+# End-to-end latency of pearl_node and of a no-op baseline node (in-process): 300, 500 and
+# 1000 features at 30 Hz, 2000 at 10 Hz, window 10 (issue 17).
 bench-node: venv
 	$(ROS_ENV) $(BIN)/pearl_node_bench --features 300 500 1000 2000@10 --rate 30 --frames 300 \
 		--set window=10
