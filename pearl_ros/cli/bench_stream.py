@@ -148,9 +148,9 @@ KINDS = ('floor', 'pearl')  # pearl_bench latency rows: the window alone, the se
 def parse_size(token: str, rate_hz: float) -> tuple[int, float]:
     """``'500'`` -> (500, ``rate_hz``); ``'2000@10'`` -> (2000, 10.0): features per frame and
     the frame rate (Hz) of one benchmark size. InputError on anything else."""
-    features, _, rate = token.partition('@')
+    features, at, rate = token.partition('@')
     try:
-        size = (int(features), float(rate) if rate else float(rate_hz))
+        size = (int(features), float(rate) if at else float(rate_hz))
     except ValueError:
         raise InputError(f'a size is FEATURES or FEATURES@HZ (such as 2000@10), got '
                          f'{token!r}') from None

@@ -332,12 +332,11 @@ def test_oracle_fills_the_truth_columns(root, tmp_path, capsys):
 def test_latency_bench_prints_ordered_percentiles_and_errors_in_range(capsys):
     assert main(['latency', '--frames', '12', '--features', '100', '--windows', '5']) == 0
     rows = [line.split() for line in capsys.readouterr().out.splitlines()
-            if line.split()[:2] == ['100', '5']]
+            if line.split()[:2] == ['pearl', '100']]
     assert len(rows) == 1
-    features, window, frames, scene, p50, p95, p99, top, peak, final, mean = rows[0]
-    assert (int(features), int(window), int(frames), int(scene)) == (100, 5, 12, 0)
+    _, _, rate, window, scene, answered, p50, p95, p99, top, _, _, _, mean, final = rows[0]
+    assert (float(rate), int(window), int(scene), answered) == (30.0, 5, 0, '12/12')
     assert 0 < float(p50) <= float(p95) <= float(p99) <= float(top)
-    assert float(peak) > 0
     assert 0 <= float(final) <= 100 and 0 <= float(mean) <= 100
 
 
@@ -345,8 +344,8 @@ def test_latency_bench_runs_one_stream_per_scene_seed(capsys):
     assert main(['latency', '--frames', '8', '--features', '60', '--windows', '3',
                  '--scene-seeds', '0', '2']) == 0
     rows = [line.split() for line in capsys.readouterr().out.splitlines()
-            if line.split()[:2] == ['60', '3']]
-    assert [int(row[3]) for row in rows] == [0, 2]
+            if line.split()[:2] == ['pearl', '60']]
+    assert [int(row[4]) for row in rows] == [0, 2]
 
 
 def test_latency_bench_rejects_a_negative_scene_seed(capsys):
