@@ -32,7 +32,7 @@ from pearl_ros.core.models import get_model
 from pearl_ros.core.neighbourhood import Neighbourhood, neighbourhood
 from pearl_ros.core.pearl import fit, noise_scale
 from pearl_ros.online.config import OnlineConfig
-from pearl_ros.online.window import SlidingWindow
+from pearl_ros.online.window import SlidingWindow, lookup
 
 _TWO_VIEW = ('fundamental', 'homography')
 
@@ -85,7 +85,9 @@ class OnlineSegmenter:
         self.online = online or OnlineConfig()
         self._rng = np.random.default_rng(self.online.seed)
         self._window = SlidingWindow(self.online.window)
-        self._label_of_track: dict[int, int] = {}  # track key -> motion number, last frame
+        # Track keys (sorted) labelled in the last frame, and their motion numbers.
+        self._labelled_keys = np.empty(0, dtype=np.int64)
+        self._labelled_motions = np.empty(0, dtype=np.int64)
         self._next_label = 0
         self._scales: dict[str, tuple[float, int]] = {}  # model -> (px, fitted frames since)
         self._quiet = 0  # warm fits since the last one with fresh proposals
@@ -101,7 +103,7 @@ class OnlineSegmenter:
     def reset(self) -> None:
         """Empty the window. Motion numbers already used are never given out again."""
         self._window.clear()
-        self._label_of_track = {}
+        self._labelled_keys = self._labelled_motions = np.empty(0, dtype=np.int64)
         self._scales = {}
         self._quiet = 0
         self._owed = 0
@@ -164,8 +166,7 @@ class OnlineSegmenter:
             tracks = coords[-span:, fitted]
             if model_name in _TWO_VIEW:
                 tracks = tracks[[0, -1]]
-            prior = np.array([self._label_of_track.get(k, OUTLIER) for k in keys[fitted]],
-                             dtype=np.int64)
+            prior = lookup(self._labelled_keys, self._labelled_motions, keys[fitted], OUTLIER)
             warm = self.online.warm_start and bool(np.any(prior != OUTLIER))
             segments = self._fit(tracks, keys[fitted], model_name, prior, warm, start)
             motion_labels[fitted] = self._identify(segments, prior)
@@ -181,8 +182,9 @@ class OnlineSegmenter:
         else:
             span, model_name = 0, ''
         labels[seen] = motion_labels
-        self._label_of_track = {int(k): int(v) for k, v in zip(keys, motion_labels, strict=True)
-                                if v != OUTLIER}
+        labelled = np.flatnonzero(motion_labels != OUTLIER)
+        by_key = labelled[np.argsort(keys[labelled], kind='stable')]
+        self._labelled_keys, self._labelled_motions = keys[by_key], motion_labels[by_key]
         return FrameResult(stamp_ns, labels, num_motions(motion_labels), span,
                            int(fitted.size) if span else 0, model_name, reset, warm,
                            time.perf_counter() - start)

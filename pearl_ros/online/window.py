@@ -35,7 +35,9 @@ class SlidingWindow:
     def __init__(self, size: int) -> None:
         self.size = size
         self._frames: deque[WindowFrame] = deque(maxlen=size)
-        self._key_of_id: dict[int, int] = {}  # ids of the newest frame -> their track keys
+        # The ids of the newest frame, sorted, and their track keys.
+        self._ids = np.empty(0, dtype=np.int64)
+        self._id_keys = np.empty(0, dtype=np.int64)
         self._next_key = 0
 
     def __len__(self) -> int:
@@ -53,7 +55,7 @@ class SlidingWindow:
     def clear(self) -> None:
         """Forget every frame and track (keys keep increasing: a new track is never an old one)."""
         self._frames.clear()
-        self._key_of_id = {}
+        self._ids = self._id_keys = np.empty(0, dtype=np.int64)
 
     def push(self, stamp_ns: int, ids: np.ndarray, uv: np.ndarray) -> np.ndarray:
         """Append a frame; returns the track key of each feature, in input order.
@@ -64,17 +66,13 @@ class SlidingWindow:
         ids : (N,) int64, unique tracker ids
         uv : (N, 2) float64, pixels, finite
         """
-        keys = np.empty(ids.size, dtype=np.int64)
-        previous = self._key_of_id
-        current: dict[int, int] = {}
-        for i, ident in enumerate(ids.tolist()):
-            key = previous.get(ident)
-            if key is None:
-                key = self._next_key
-                self._next_key += 1
-            keys[i] = key
-            current[ident] = key
-        self._key_of_id = current
+        ids = np.asarray(ids, dtype=np.int64)
+        keys = lookup(self._ids, self._id_keys, ids, -1)
+        new = keys < 0  # ids not in the previous frame: new tracks, keyed in input order
+        keys[new] = self._next_key + np.arange(np.count_nonzero(new))
+        self._next_key += int(np.count_nonzero(new))
+        by_id = np.argsort(ids, kind='stable')
+        self._ids, self._id_keys = ids[by_id], keys[by_id]
         order = np.argsort(keys, kind='stable')
         self._frames.append(WindowFrame(stamp_ns, keys[order], uv[order]))
         return keys
@@ -96,3 +94,16 @@ class SlidingWindow:
             coords[f, found] = frame.uv[pos[found]]
             age += found
         return coords, age
+
+
+def lookup(sorted_keys: np.ndarray, values: np.ndarray, queries: np.ndarray,
+           missing: int) -> np.ndarray:
+    """``values`` at the positions of ``queries`` in ``sorted_keys`` (unique, ascending),
+    ``missing`` for a query not among them, ``(Q,)`` int64."""
+    out = np.full(queries.size, missing, dtype=np.int64)
+    if sorted_keys.size == 0 or queries.size == 0:
+        return out
+    pos = np.minimum(np.searchsorted(sorted_keys, queries), sorted_keys.size - 1)
+    found = sorted_keys[pos] == queries
+    out[found] = values[pos[found]]
+    return out

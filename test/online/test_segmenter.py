@@ -216,7 +216,7 @@ def test_state_stays_bounded_on_a_long_stream():
     for f in frames:
         seg.process(f.stamp_ns, f.ids, f.uv)
         assert seg.frames_in_window <= 5
-        assert len(seg._label_of_track) <= f.ids.size
+        assert seg._labelled_keys.size <= f.ids.size
 
 
 def test_warm_and_cold_agree_with_the_truth_on_a_clear_scene():
