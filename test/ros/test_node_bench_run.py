@@ -1,0 +1,48 @@
+"""``pearl_node_bench`` end to end: a no-op row and a pearl_node row per size, both answered.
+No assertion on a measured time."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+
+import numpy as np
+
+from pearl_ros.cli.bench_stream import make_stream
+from pearl_ros.ros.bench import main
+
+from ros_harness import REPO  # sets the test's domain id and local discovery first
+
+FRAMES = 20
+
+
+def test_node_bench_answers_every_frame_with_a_no_op_row_and_a_pearl_node_row() -> None:
+    # A reliable input queue deep enough for the whole stream: no frame can be lost on the way.
+    done = subprocess.run(
+        [sys.executable, '-m', 'pearl_ros.ros.bench', '--features', '60', '--frames',
+         str(FRAMES), '--set', 'qos=reliable', '--set', f'qos_depth={FRAMES}'],
+        capture_output=True, text=True, timeout=300, cwd=REPO, env=dict(os.environ))
+    assert done.returncode == 0, done.stderr
+    rows = {line.split()[0]: line.split() for line in done.stdout.splitlines()
+            if line.split()[:1] in (['no-op'], ['pearl_node'])}
+    assert set(rows) == {'no-op', 'pearl_node'}
+    for row in rows.values():
+        kind, features, rate, answered, p50, p99, top, over, ratio, mean, final = row
+        assert (features, rate, answered) == ('60', '30', f'{FRAMES}/{FRAMES}')
+        assert 0 < float(p50) <= float(p99) <= float(top)
+        assert 0 <= float(over) <= 100
+    # The no-op node labels every feature -1: wrong exactly where the truth is not an outlier,
+    # over frames 5-19 (the last three quarters) of the same stream.
+    truth = [frame.truth for frame in make_stream('robot', 60, FRAMES, 0)]
+    expected = 100 * np.mean([np.mean(t != -1) for t in truth[FRAMES // 4:]])
+    assert float(rows['no-op'][9]) == round(expected, 2)
+    assert float(rows['no-op'][10]) == round(100 * np.mean(truth[-1] != -1), 2)
+    # pearl_node segments: it gets more right than labelling nothing.
+    assert float(rows['pearl_node'][9]) < float(rows['no-op'][9])
+
+
+def test_node_bench_refuses_a_bad_size_in_one_line_before_starting_ros(capsys) -> None:
+    assert main(['--features', '300@fast']) == 1
+    err = capsys.readouterr().err
+    assert err.startswith('error: a size is FEATURES or FEATURES@HZ') and err.count('\n') == 1
