@@ -31,6 +31,7 @@ NODE_NAME = 'pearl_node'
 NODE_FQN = '/' + NODE_NAME  # the node's fully qualified name when nothing remaps it
 MSG_TYPES = ('PointCloud', 'PointCloud2')
 QOS_CHOICES = ('sensor_data', 'reliable')
+QUEUE_POLICIES = ('newest', 'all')
 _INT64 = 2**63 - 1
 
 # Parameters that rclpy declares on every node itself: a node's parameter file may set them.
@@ -60,6 +61,11 @@ class NodeConfig:
                     'or reliable (keep last qos_depth; VINS publishes reliable)',
                     choices=QOS_CHOICES)
     qos_depth: int = spec(5, 'messages, input queue depth', low=1, high=100_000)
+    queue_policy: str = spec('newest', 'what a node slower than its input answers: newest (the '
+                             'newest message; one a newer message replaced before the node got '
+                             'to it is dropped) or all (every message in arrival order, at most '
+                             'qos_depth waiting; beyond, the oldest is dropped); drops are '
+                             'counted in /diagnostics', choices=QUEUE_POLICIES)
     max_features: int = spec(2000, 'features per message fed to the segmenter; a larger message '
                              'is subsampled by a hash of the ids (the same ids kept every '
                              'frame), the rest labelled -1', low=1, high=10_000_000)

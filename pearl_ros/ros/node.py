@@ -21,21 +21,37 @@ Topics (names relative to the node's namespace unless absolute)
 
 Service ``~/reset`` (``std_srvs/srv/Trigger``) empties the window.
 
-Every input message that can be read gets exactly one ``motion_labels`` and one
-``static_features`` with its header. One that cannot (see :meth:`PearlNode._on_features`) gets
-none: it is counted in the diagnostics and answered by a throttled warning. The per-message work
-is :class:`~pearl_ros.pipeline.messages.MessagePipeline`, the code ``pearl_replay`` runs.
-Drawing never delays ``motion_labels``: a frame's labels are published before its image is
-drawn, in the same callback when the image came first.
+The subscription callback only hands each message to a worker thread of the node
+(:class:`Mailbox`), which segments it and publishes the answer, so that messages keep being taken
+(and counted) while a frame is computed. When the node is slower than its input, parameter
+``queue_policy`` says what it answers:
 
-SIGINT or SIGTERM stops the node between two callbacks, with exit status 0.
+``newest`` (the default)
+    The newest message it has: a message that a newer one replaced before the worker got to it
+    is dropped and never answered. The answers lag the input by at most about one frame.
+``all``
+    Every message, in arrival order, with at most ``qos_depth`` waiting; beyond, the oldest
+    waiting message is dropped. For bag replays and offline users: the lag grows with the
+    backlog.
+
+A dropped message is counted in the diagnostics (``messages dropped (late)``, and a WARN status
+for the period) and warned about (throttled). Every message the worker takes that can be read
+gets exactly one ``motion_labels`` and one ``static_features`` with its header, in arrival
+order. One that cannot (see :meth:`PearlNode._answer`) gets none: it is counted in the
+diagnostics and answered by a throttled warning. The per-message work is
+:class:`~pearl_ros.pipeline.messages.MessagePipeline`, the code ``pearl_replay`` runs. Drawing
+never delays ``motion_labels``: a frame's labels are published before its image is drawn.
+
+SIGINT or SIGTERM stops the node between two callbacks, with exit status 0: the worker ends the
+frame it is on, and the messages waiting for it are not answered.
 """
 
 from __future__ import annotations
 
 import sys
+import threading
 import time
-from collections import Counter
+from collections import Counter, deque
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass, field
@@ -87,6 +103,7 @@ class Stats:
 
     received: int = 0
     processed: int = 0
+    dropped: int = 0  # late: replaced by a newer message (newest) or pushed out of the backlog
     malformed: int = 0  # unreadable: decode refused it
     skipped: int = 0  # readable, not segmented: empty, repeated stamp
     capped: int = 0  # more than max_features: a subsample was segmented
@@ -98,11 +115,13 @@ class Stats:
     annotated: int = 0  # image_labels published
     bad_images: int = 0  # unsupported encoding, or step / data that do not fit
     incompatible_qos: int = 0  # publishers whose QoS the subscription cannot match
+    window: int = 0  # frames in the window, after the last frame or ~/reset
     motions: int = 0  # last segmented frame
     features: int = 0
     segmented: int = 0
     period_start: float = field(default_factory=time.monotonic)
     period_received: int = 0
+    period_dropped: int = 0
     period_problems: int = 0
     period_bad_images: int = 0
     period_latency_s: list[float] = field(default_factory=list)
@@ -161,6 +180,55 @@ class StampMatcher:
         return len(self._waiting[kind])
 
 
+class Mailbox:
+    """The messages the subscription callback hands to the node's worker thread.
+
+    Policy ``'newest'``: one slot; an item put while one waits replaces it. ``'all'``: up to
+    ``depth`` items wait and are taken in arrival order; one more pushes the oldest out (as a
+    keep-last DDS history does). Thread-safe.
+
+    Parameters
+    ----------
+    policy : {'newest', 'all'}
+    depth : int
+        Items that may wait under ``'all'``.
+    """
+
+    def __init__(self, policy: str, depth: int) -> None:
+        self.capacity = 1 if policy == 'newest' else depth
+        self._items: deque[Any] = deque()
+        self._ready = threading.Condition()
+        self._closed = False
+
+    @property
+    def closed(self) -> bool:
+        return self._closed
+
+    def put(self, item: Any) -> Any:
+        """Hand ``item`` over; the item it pushed out (dropped), or None."""
+        with self._ready:
+            dropped = self._items.popleft() if len(self._items) >= self.capacity else None
+            self._items.append(item)
+            self._ready.notify()
+        return dropped
+
+    def take(self) -> Any:
+        """The oldest waiting item, once there is one; None once :meth:`close` was called."""
+        with self._ready:
+            self._ready.wait_for(lambda: self._items or self._closed)
+            return None if self._closed else self._items.popleft()
+
+    def close(self) -> None:
+        """Make :meth:`take` return None, now and from now on (what waits is left)."""
+        with self._ready:
+            self._closed = True
+            self._ready.notify_all()
+
+    def __len__(self) -> int:
+        with self._ready:
+            return len(self._items)
+
+
 class PearlNode(Node):
     """The segmentation node (module docstring). Keyword arguments go to ``rclpy.node.Node``.
 
@@ -195,9 +263,16 @@ class PearlNode(Node):
             raise
         self._pipeline = MessagePipeline(settings, convert.TYPES)
         self.stats = Stats()
-        self._warn = runner.Throttle(self).warn  # one warning per kind per WARN_PERIOD_S
+        self._throttle = runner.Throttle(self)  # one warning per kind per WARN_PERIOD_S
+        # Shared between the executor's thread and the worker's. Taken in this order when
+        # nested; `_lock` and `_warn_lock` are only held for a few statements.
+        self._pipeline_lock = threading.Lock()  # the pipeline: a frame, ~/reset, a new setting
+        self._image_lock = threading.Lock()  # the StampMatcher and the Overlay
+        self._lock = threading.Lock()  # self.stats
+        self._warn_lock = threading.Lock()  # self._throttle
 
         node = settings.node
+        self._mailbox = Mailbox(node.queue_policy, node.qos_depth)
         self._msg_class = convert.MSG_CLASSES[node.msg_type]
         self._sub = self.create_subscription(
             self._msg_class, 'features', self._on_features, input_qos(node.qos, node.qos_depth),
@@ -214,9 +289,13 @@ class PearlNode(Node):
         self.add_pre_set_parameters_callback(_ints_as_floats)
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self._timer = self.create_timer(node.diagnostics_period, self._on_timer)
+        self._worker = threading.Thread(target=self._work, daemon=True,
+                                        name=f'{self.get_fully_qualified_name()} worker')
+        self._worker.start()
         self.get_logger().info(
             f'segmenting {node.msg_type} on {self._sub.topic_name} '
-            f'(layout {node.layout}, qos {node.qos} depth {node.qos_depth})'
+            f'(layout {node.layout}, qos {node.qos} depth {node.qos_depth}, '
+            f'queue_policy {node.queue_policy})'
         )
 
     def _subscribe_images(self, node: pipeline_settings.NodeConfig) -> None:
@@ -244,46 +323,76 @@ class PearlNode(Node):
     # ------------------------------------------------------------------------------ input
 
     def _on_features(self, msg: Any) -> None:
+        """Hand a message to the worker (:class:`Mailbox`); count, and warn about, the message
+        it pushed out, if any (``queue_policy``)."""
+        arrival = time.perf_counter()  # a frame's latency includes its wait for the worker
+        with self._lock:
+            self.stats.received += 1
+            self.stats.period_received += 1
+        dropped = self._mailbox.put((msg, arrival))
+        if dropped is None:
+            return
+        with self._lock:
+            self.stats.dropped += 1
+            self.stats.period_dropped += 1
+        node = self.settings.node
+        why = ('a newer message came before the node got to it' if node.queue_policy == 'newest'
+               else f'{self._mailbox.capacity} messages (qos_depth) were already waiting')
+        self._warn('late', f'message of stamp {decode.stamp_ns(dropped[0].header)} ns dropped '
+                   f'unanswered: {why} (the node is slower than the input; queue_policy '
+                   f'{node.queue_policy})')
+
+    def _work(self) -> None:
+        """The worker thread: answer what the mailbox hands over until it is closed."""
+        while (item := self._mailbox.take()) is not None:
+            try:
+                self._answer(*item)
+            except Exception as err:  # a bug must not silence the node: count it, go on
+                with self._lock:
+                    self.stats.errors += 1
+                self._warn('error', f'internal error, message dropped: {type(err).__name__}: '
+                           f'{err}')
+
+    def _answer(self, msg: Any, arrival: float) -> None:
         """Segment one message (:meth:`MessagePipeline.process`); publish its two outputs.
 
         A message the pipeline skips gets no output: it is counted (malformed, or skipped when
         it was read but had nothing to segment) and warned about, once per kind of problem per
         :data:`runner.WARN_PERIOD_S`. A capped message (more than ``max_features``) and a stamp
-        going back in time (the window is emptied first) are warned about too.
+        going back in time (the window is emptied first) are warned about too. ``arrival`` is
+        the :func:`time.perf_counter` time the subscription callback took the message at.
         """
-        start = time.perf_counter()
-        stats, msg_type = self.stats, self.settings.node.msg_type
-        stats.received += 1
-        stats.period_received += 1
-        try:
+        with self._pipeline_lock:
             out = self._pipeline.process(msg)
-        except Exception as err:  # a bug must not take the node down with it
-            stats.errors += 1
-            self._warn('error', f'internal error, message dropped: {type(err).__name__}: {err}')
-            return
+            with self._lock:
+                self.stats.window = self._pipeline.frames_in_window
+        node = self.settings.node
         if isinstance(out, Skipped):
-            stats.malformed += out.malformed
-            stats.skipped += not out.malformed
-            stats.period_problems += 1
-            self._warn(out.kind, f'{msg_type} message {out.line}')
+            with self._lock:
+                self.stats.malformed += out.malformed
+                self.stats.skipped += not out.malformed
+                self.stats.period_problems += 1
+            self._warn(out.kind, f'{node.msg_type} message {out.line}')
             return
         if out.capped:
-            stats.capped += 1
             self._warn('capped', f'{out.ids.size} features > max_features '
-                       f'{self.settings.node.max_features}: segmenting a hashed subsample, the '
-                       'rest labelled -1')
+                       f'{node.max_features}: segmenting a hashed subsample, the rest labelled -1')
         if out.result.reset:
-            stats.resets += 1
             self.get_logger().warning(f'stamp {out.stamp_ns} ns went back in time: window '
                                       'emptied (bag replayed in a loop?)')
         with self._quiet_after_shutdown():
             self._labels_pub.publish(out.labels_msg)
             self._static_pub.publish(out.static_msg)
-        stats.processed += 1
-        stats.motions = out.result.motions
-        stats.features = int(out.ids.size)
-        stats.segmented = int(out.segmented.sum())
-        stats.period_latency_s.append(time.perf_counter() - start)
+        latency = time.perf_counter() - arrival
+        with self._lock:
+            stats = self.stats
+            stats.capped += out.capped
+            stats.resets += bool(out.result.reset)
+            stats.processed += 1
+            stats.motions = out.result.motions
+            stats.features = int(out.ids.size)
+            stats.segmented = int(out.segmented.sum())
+            stats.period_latency_s.append(latency)
         if self._overlay is not None:  # after motion_labels is out: drawing delays nothing
             self._offer_labels(out)
 
@@ -295,7 +404,8 @@ class PearlNode(Node):
         An encoding :mod:`pearl_ros.tracking.image` does not read is counted and warned about
         (throttled), and the image dropped.
         """
-        self.stats.images += 1
+        with self._lock:
+            self.stats.images += 1
         encoding = str(msg.encoding)
         if encoding not in image_io.ENCODINGS:
             self._bad_image(f'image encoding {encoding!r} on {self._image_sub.topic_name} not '
@@ -309,19 +419,27 @@ class PearlNode(Node):
         what waited for a later stamp)."""
         assert self._overlay is not None
         if out.result.reset:
-            self._overlay.reset()
-            self._matcher.discard(lambda stamp: stamp > out.stamp_ns)
+            with self._image_lock:
+                self._overlay.reset()
+                self._matcher.discard(lambda stamp: stamp > out.stamp_ns)
         self._pair('labels', out.stamp_ns, (out.ids, out.uv, out.labels))
 
     def _pair(self, kind: str, stamp_ns: int, item: Any) -> None:
-        overflows = self._matcher.overflows
-        pair = self._matcher.add(kind, stamp_ns, item)
-        if self._matcher.overflows > overflows:
+        """Offer an image or a frame's labels to the matcher; draw the pair it makes, if any.
+
+        Runs in the executor's thread (an image) and in the worker's (labels): the matcher and
+        the overlay change under :attr:`_image_lock`, so pairs are drawn in the order made.
+        """
+        with self._image_lock:
+            overflows = self._matcher.overflows
+            pair = self._matcher.add(kind, stamp_ns, item)
+            overflowed = self._matcher.overflows > overflows
+            if pair is not None:
+                self._draw(*pair)
+        if overflowed:
             self._warn('unmatched', f'{self._matcher.depth} {kind} messages wait for a partner '
                        f'of the same stamp (is {self._image_sub.topic_name} the image the '
                        'features were tracked in?): dropping the oldest')
-        if pair is not None:
-            self._draw(*pair)
 
     def _draw(self, msg: Image, labels: tuple[np.ndarray, np.ndarray, np.ndarray]) -> None:
         """Publish ``msg`` with the labels drawn on it, on ``image_labels``, with its header."""
@@ -335,46 +453,77 @@ class PearlNode(Node):
                             f'for it: {one_line(err)}')
             return
         except Exception as err:  # a bug must not take the node down with it
-            self.stats.errors += 1
+            with self._lock:
+                self.stats.errors += 1
             self._warn('error', f'internal error, image dropped: {type(err).__name__}: {err}')
             return
         with self._quiet_after_shutdown():
             self._image_pub.publish(out)
-        self.stats.annotated += 1
+        with self._lock:
+            self.stats.annotated += 1
 
     def _bad_image(self, text: str) -> None:
-        self.stats.bad_images += 1
-        self.stats.period_bad_images += 1
+        with self._lock:
+            self.stats.bad_images += 1
+            self.stats.period_bad_images += 1
         self._warn('image', text)
+
+    def _warn(self, kind: str, text: str) -> None:
+        """A warning, at most one of each ``kind`` per :data:`runner.WARN_PERIOD_S`."""
+        with self._warn_lock:
+            self._throttle.warn(kind, text)
 
     @contextmanager
     def _quiet_after_shutdown(self) -> Iterator[None]:
-        """Let a callback end quietly when the context was shut down under it.
+        """Let a callback, or the worker, end quietly when the node is being destroyed or the
+        context was shut down under it.
 
-        A signal handler or a launch system may shut the context down while a callback runs;
-        rclpy then refuses to publish (``RCLError: publisher's context is invalid``). Nobody is
-        left to receive the message: that is the end of the callback, not an error.
+        A signal handler or a launch system may shut the context down while a frame is
+        published; rclpy then refuses to publish (``RCLError: publisher's context is
+        invalid``). Nobody is left to receive the message: that is the end of the frame, not an
+        error. The mailbox is closed first: while the context's shutdown destroys the node and
+        waits for the worker, it holds the lock that :meth:`Context.ok` takes.
         """
         try:
             yield
         except Exception:
-            if self.context.ok():
+            if not self._mailbox.closed and self.context.ok():
                 raise
 
     def _on_incompatible_qos(self, info: Any) -> None:
-        self.stats.incompatible_qos = int(info.total_count)
+        with self._lock:
+            self.stats.incompatible_qos = int(info.total_count)
         self._warn('qos', f'{info.total_count} publisher(s) on {self._sub.topic_name} have a QoS '
                    f'this {self.settings.node.qos} subscription cannot match '
                    f'({info.last_policy_kind.name}): nothing is received from them')
+
+    def destroy_node(self) -> None:
+        """Stop the worker, then destroy the node as rclpy does.
+
+        The worker ends the frame it is on (its answer is published); the messages waiting for
+        it are not answered. A context's shutdown calls this too (rclpy destroys the nodes of a
+        context first), maybe from the worker itself.
+        """
+        mailbox: Mailbox | None = getattr(self, '_mailbox', None)  # None: __init__ failed
+        worker: threading.Thread | None = getattr(self, '_worker', None)
+        if mailbox is not None:
+            mailbox.close()
+        if (worker is not None and worker.ident is not None
+                and worker is not threading.current_thread()):
+            worker.join()
+        super().destroy_node()
 
     # ------------------------------------------------------------------------- services
 
     def _on_reset(self, request: Trigger.Request, response: Trigger.Response
                   ) -> Trigger.Response:
         del request
-        frames = self._pipeline.frames_in_window
-        self._pipeline.reset()
-        self.stats.reset_requests += 1
+        with self._pipeline_lock:  # after the frame the worker is on, if any
+            frames = self._pipeline.frames_in_window
+            self._pipeline.reset()
+            with self._lock:
+                self.stats.window = self._pipeline.frames_in_window
+                self.stats.reset_requests += 1
         response.success = True
         response.message = f'window emptied ({frames} frames dropped)'
         self.get_logger().info(response.message)
@@ -400,7 +549,8 @@ class PearlNode(Node):
             settings = pipeline_settings.build(values)
         except InputError as err:
             return SetParametersResult(successful=False, reason=str(err))
-        self._pipeline.reconfigure(settings)
+        with self._pipeline_lock:  # after the frame the worker is on, if any
+            self._pipeline.reconfigure(settings)
         self._values = values
         return SetParametersResult(successful=True, reason='')
 
@@ -421,7 +571,8 @@ class PearlNode(Node):
         expected = convert.TYPE_NAMES[self.settings.node.msg_type]
         wrong = [info for info in self.get_publishers_info_by_topic(topic)
                  if info.topic_type != expected]
-        self.stats.mismatched_publishers = len(wrong)
+        with self._lock:
+            self.stats.mismatched_publishers = len(wrong)
         if wrong:
             kinds = ', '.join(sorted({info.topic_type for info in wrong}))
             self._warn('type', f'{len(wrong)} publisher(s) send {kinds} on {topic} but msg_type '
@@ -429,15 +580,49 @@ class PearlNode(Node):
 
     def diagnostics(self) -> DiagnosticArray:
         """The status of the last period, and starts a new period."""
-        stats = self.stats
-        now = time.monotonic()
-        elapsed = max(now - stats.period_start, 1e-9)
-        latency_ms = np.asarray(stats.period_latency_s) * 1e3
-        problems = []
+        image_values = self._image_values()
+        with self._lock:
+            stats = self.stats
+            now = time.monotonic()
+            elapsed = max(now - stats.period_start, 1e-9)
+            latency_ms = np.asarray(stats.period_latency_s) * 1e3
+            problems = self._problems()
+            values = {
+                'input rate (Hz)': f'{stats.period_received / elapsed:.2f}',
+                'latency mean (ms)': f'{latency_ms.mean():.2f}' if latency_ms.size else '',
+                'latency max (ms)': f'{latency_ms.max():.2f}' if latency_ms.size else '',
+                'motions': stats.motions,
+                'features': stats.features,
+                'features segmented': stats.segmented,
+                'frames in window': stats.window,
+                'messages received': stats.received,
+                'messages processed': stats.processed,
+                'messages dropped (late)': stats.dropped,
+                'malformed messages': stats.malformed,
+                'skipped messages': stats.skipped,
+                'capped messages': stats.capped,
+                'window resets (stamp went back)': stats.resets,
+                'reset requests': stats.reset_requests,
+                'internal errors': stats.errors,
+                'publishers of another type': stats.mismatched_publishers,
+                'publishers with incompatible QoS': stats.incompatible_qos,
+                **image_values,
+            }
+            stats.period_start, stats.period_received, stats.period_problems = now, 0, 0
+            stats.period_dropped = stats.period_bad_images = 0
+            stats.period_latency_s = []
+        return runner.diagnostics(self, 'motion segmentation', 'segmenting', problems, values)
+
+    def _problems(self) -> list[str]:
+        """What makes the period's status WARN (under :attr:`_lock`)."""
+        stats, problems = self.stats, []
         if stats.mismatched_publishers:
             problems.append(f'{stats.mismatched_publishers} publisher(s) of another type')
         if stats.incompatible_qos:
             problems.append(f'{stats.incompatible_qos} publisher(s) with incompatible QoS')
+        if stats.period_dropped:
+            problems.append(f'{stats.period_dropped} message(s) dropped: the node is slower '
+                            'than the input')
         if stats.period_problems:
             problems.append(f'{stats.period_problems} message(s) malformed or skipped')
         if stats.period_bad_images:
@@ -445,45 +630,23 @@ class PearlNode(Node):
                             'or malformed')
         if not stats.period_received:
             problems.append('no input')
-        values = {
-            'input rate (Hz)': f'{stats.period_received / elapsed:.2f}',
-            'latency mean (ms)': f'{latency_ms.mean():.2f}' if latency_ms.size else '',
-            'latency max (ms)': f'{latency_ms.max():.2f}' if latency_ms.size else '',
-            'motions': stats.motions,
-            'features': stats.features,
-            'features segmented': stats.segmented,
-            'frames in window': self._pipeline.frames_in_window,
-            'messages received': stats.received,
-            'messages processed': stats.processed,
-            'malformed messages': stats.malformed,
-            'skipped messages': stats.skipped,
-            'capped messages': stats.capped,
-            'window resets (stamp went back)': stats.resets,
-            'reset requests': stats.reset_requests,
-            'internal errors': stats.errors,
-            'publishers of another type': stats.mismatched_publishers,
-            'publishers with incompatible QoS': stats.incompatible_qos,
-            **self._image_values(),
-        }
-        stats.period_start, stats.period_received, stats.period_problems = now, 0, 0
-        stats.period_bad_images = 0
-        stats.period_latency_s = []
-        return runner.diagnostics(self, 'motion segmentation', 'segmenting', problems, values)
+        return problems
 
     def _image_values(self) -> dict[str, Any]:
         """The diagnostics of ``image_labels`` (none when ``image_topic`` is empty)."""
         if self._overlay is None:
             return {}
-        matcher = self._matcher
-        return {
-            'images received': self.stats.images,
-            'annotated images': self.stats.annotated,
-            'images refused (encoding, malformed)': self.stats.bad_images,
-            'images without labels (dropped)': matcher.dropped['image'],
-            'labels without image (dropped)': matcher.dropped['labels'],
-            'images waiting': matcher.waiting('image'),
-            'labels waiting': matcher.waiting('labels'),
-        }
+        with self._image_lock, self._lock:
+            matcher, stats = self._matcher, self.stats
+            return {
+                'images received': stats.images,
+                'annotated images': stats.annotated,
+                'images refused (encoding, malformed)': stats.bad_images,
+                'images without labels (dropped)': matcher.dropped['image'],
+                'labels without image (dropped)': matcher.dropped['labels'],
+                'images waiting': matcher.waiting('image'),
+                'labels waiting': matcher.waiting('labels'),
+            }
 
 
 _FLOAT_NAMES = frozenset(item.name for item in params.ALL_SPECS if item.type is float)
@@ -504,7 +667,9 @@ USAGE = """usage: pearl_node [-h] [--ros-args [-r features:=TOPIC] [--params-fil
                   [-p NAME:=VALUE] ...]
 
 Online motion segmentation of tracked features (PEaRL): labels each feature of each message on
-`features` with its motion, and passes the background motion's features on.
+`features` with its motion, and passes the background motion's features on. When segmenting is
+slower than the input, the node answers the newest message and drops (and counts) those a newer
+one replaced; with queue_policy all it answers every message, in arrival order.
 
 topics (relative to the node's namespace; remap `features` to the tracker's topic):
   features (in)          sensor_msgs/msg/PointCloud (VINS-Mono, VINS-Fusion) or PointCloud2

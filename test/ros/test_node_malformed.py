@@ -81,8 +81,9 @@ MALFORMED = {
 
 
 def _start(ros: Ros, **overrides: object) -> tuple[Node, Probe]:
-    # Reliable input, so that a burst of messages sent between two spins cannot be dropped.
-    node = ros.pearl(qos='reliable', qos_depth=50, **overrides)
+    # Reliable input, so that a burst of messages sent between two spins cannot be dropped,
+    # and every message answered (or counted as malformed), however slow the node.
+    node = ros.pearl(qos='reliable', qos_depth=50, queue_policy='all', **overrides)
     probe = ros.probe()
     probe.wait_for(node)
     return node, probe
