@@ -249,12 +249,22 @@ class _Search:
 
     def add(self, params: np.ndarray, sigmas: np.ndarray, residuals: np.ndarray) -> None:
         """Offer new models (labels after the current ones), standing for no init segment."""
+        origin = np.full(params.shape[0], OUTLIER, dtype=np.int64)
         self.params = np.concatenate([self.params, params])
         self.sigmas = np.concatenate([self.sigmas, sigmas])
         self.residuals = np.concatenate([self.residuals, residuals])
-        self.origin = np.concatenate([self.origin,
-                                      np.full(params.shape[0], OUTLIER, dtype=np.int64)])
-        self._tables()
+        self.origin = np.concatenate([self.origin, origin])
+        # Only the new models' rows are measured: the others' are unchanged.
+        setting = self.setting
+        rows = data_costs(residuals, sigmas, setting.dof, setting.floor)
+        if self.init_cost:
+            bias = _init_bias(self.prior, origin, self.init_cost)[1:]
+            rows += bias
+            self.bias = np.concatenate([self.bias, bias])
+        else:
+            self.bias = _init_bias(self.prior, self.origin, 0.0)
+        self.unary = np.concatenate([self.unary, rows])
+        self.problem = setting.problem(self.unary)
 
     def adopt(self, label: int, fitted: _Refit) -> None:
         """Model ``label`` becomes a refit of :func:`_refit_one` (params, noise level, residual
