@@ -321,8 +321,9 @@ def fit(
     deadline : float, optional
         ``time.perf_counter()`` value after which no further alpha-expansion, split or merge
         trial, expand / re-estimate iteration or proposal round starts; one expansion move
-        and one split trial always run, and more moves until a point has a model. Each model in use is still re-estimated once. The result is then no longer
-        a function of the seed alone.
+        and one split trial always run, and more moves until a point has a model. Each model
+        in use is still re-estimated once. The result is then no longer a function of the seed
+        alone.
     init_cost : float, cost units, >= 0
         With ``init``: a term ``init_cost * [f_p != init model of p]`` added to the energy for
         every point with an init segment, which keeps labels from flickering between calls
