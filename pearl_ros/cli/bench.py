@@ -468,7 +468,8 @@ def _build_parser() -> argparse.ArgumentParser:
         'period, frames dropped by the queue policy, the misclassification, and a floor row '
         '(the sliding window alone) for the same frames.',
     )
-    latency.add_argument('--frames', type=int, default=60, help='frames per stream')
+    latency.add_argument('--frames', type=int, default=300,
+                         help='frames per stream (default 300, as make bench-node)')
     latency.add_argument('--features', nargs='+', default=None, metavar='N[@HZ]',
                          help='features per frame, one run each; N@HZ runs that size at HZ '
                          'instead of --rate (2000@10: 2000 features at 10 Hz); default '
@@ -477,9 +478,10 @@ def _build_parser() -> argparse.ArgumentParser:
                          help='window sizes, frames (default 10)')
     latency.add_argument('--rate', type=float, default=30.0, metavar='HZ',
                          help='frame rate, Hz: frames arrive every 1/HZ s (default 30)')
-    latency.add_argument('--queue', choices=('all', 'newest'), default='all',
-                         help='frames that arrive while one is processed: all waits its turn '
-                         '(default), newest: only the newest is processed, the rest dropped')
+    latency.add_argument('--queue', choices=('all', 'newest'), default='newest',
+                         help='frames that arrive while one is processed: newest: only the '
+                         'newest is processed, the rest dropped (default, as pearl_node\'s '
+                         'queue_policy); all: each waits its turn')
     latency.add_argument('--stream', choices=('robot', 'synthetic'), default='robot',
                          help='robot: moving camera, parallax, cars and a person, 10%% outlier '
                          'tracks (default); synthetic: rigid 2-D motions with births and deaths')

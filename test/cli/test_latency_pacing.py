@@ -107,7 +107,8 @@ def _rows(out: str) -> list[list[str]]:
 
 
 def test_paced_table_has_a_floor_and_a_segmenter_row_per_size(capsys) -> None:
-    assert main(['latency', '--frames', '12', '--features', '60', '80@10', '--windows', '5']) == 0
+    assert main(['latency', '--frames', '12', '--features', '60', '80@10', '--windows', '5',
+                 '--queue', 'all']) == 0
     rows = _rows(capsys.readouterr().out)
     assert [(r[0], r[1], r[2], r[3]) for r in rows] == [
         ('floor', '60', '30', '5'), ('pearl', '60', '30', '5'),

@@ -18,10 +18,12 @@ FRAMES = 20
 
 
 def test_node_bench_answers_every_frame_with_a_no_op_row_and_a_pearl_node_row() -> None:
-    # A reliable input queue deep enough for the whole stream: no frame can be lost on the way.
+    # A reliable input queue deep enough for the whole stream, and every message answered
+    # however late (queue_policy all): no frame can be lost on the way.
     done = subprocess.run(
         [sys.executable, '-m', 'pearl_ros.ros.bench', '--features', '60', '--frames',
-         str(FRAMES), '--set', 'qos=reliable', '--set', f'qos_depth={FRAMES}'],
+         str(FRAMES), '--set', 'qos=reliable', '--set', f'qos_depth={FRAMES}',
+         '--set', 'queue_policy=all'],
         capture_output=True, text=True, timeout=300, cwd=REPO, env=dict(os.environ))
     assert done.returncode == 0, done.stderr
     rows = {line.split()[0]: line.split() for line in done.stdout.splitlines()
