@@ -28,17 +28,19 @@ The subscription callback only hands each message to a worker thread of the node
 
 ``newest`` (the default)
     The newest message it has: a message that a newer one replaced before the worker got to it
-    is dropped and never answered. The answers lag the input by at most about one frame.
+    is dropped and never answered. A message waits at most for the frame the worker was on
+    when it came.
 ``all``
     Every message, in arrival order, with at most ``qos_depth`` waiting; beyond, the oldest
     waiting message is dropped. For bag replays and offline users: the lag grows with the
     backlog.
 
-A dropped message is counted in the diagnostics (``messages dropped (late)``, and a WARN status
-for the period) and warned about (throttled). Every message the worker takes that can be read
-gets exactly one ``motion_labels`` and one ``static_features`` with its header, in arrival
-order. One that cannot (see :meth:`PearlNode._answer`) gets none: it is counted in the
-diagnostics and answered by a throttled warning. The per-message work is
+A node that keeps up answers every message under either policy. A dropped message is counted
+in the diagnostics (``messages dropped (late)``, and a WARN status for the period) and warned
+about (throttled). Every message the worker takes that can be read gets exactly one
+``motion_labels`` and one ``static_features`` with its header, in arrival order. One that
+cannot (see :meth:`PearlNode._answer`) gets none: it is counted in the diagnostics and answered
+by a throttled warning. The per-message work is
 :class:`~pearl_ros.pipeline.messages.MessagePipeline`, the code ``pearl_replay`` runs. Drawing
 never delays ``motion_labels``: a frame's labels are published before its image is drawn.
 
