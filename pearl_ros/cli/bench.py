@@ -458,6 +458,15 @@ def _build_parser() -> argparse.ArgumentParser:
     stream.add_argument('--no-cold', action='store_true', help='skip the cold-start run')
     stream.add_argument('--set', action='append', default=[], metavar='NAME=VALUE',
                         help='override a PearlConfig or OnlineConfig field (repeatable)')
+    _add_latency_parser(commands)
+    from pearl_ros.cli import bench_sets
+
+    bench_sets.add_commands(commands)
+    return parser
+
+
+def _add_latency_parser(commands: Any) -> None:
+    """The ``latency`` subcommand's arguments."""
     latency = commands.add_parser(
         'latency',
         help='per-frame latency of the online segmenter at a frame rate, by size',
@@ -497,10 +506,6 @@ def _build_parser() -> argparse.ArgumentParser:
                          'functions by cumulative and by own time')
     latency.add_argument('--set', action='append', default=[], metavar='NAME=VALUE',
                          help='override a PearlConfig or OnlineConfig field (repeatable)')
-    from pearl_ros.cli import bench_sets
-
-    bench_sets.add_commands(commands)
-    return parser
 
 
 def _stream(args: argparse.Namespace) -> int:
