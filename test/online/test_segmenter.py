@@ -284,26 +284,25 @@ def test_a_budget_smaller_than_any_frame_still_converges_one_slice_a_frame():
         assert misclassification(results[-1].labels, frames[-1].truth) < 0.02
 
 
-def test_a_budgeted_cold_start_owes_its_proposals_to_the_next_frames(monkeypatch):
-    # Unbudgeted, the cold fit draws num_proposals in each of its rounds; budgeted, it draws a
-    # warm frame's slice, and the frames after it draw fresh proposals until the whole count
-    # is drawn (fit's propose flag), whatever propose_every says.
+def test_a_budgeted_cold_start_draws_one_warm_slice_of_proposals(monkeypatch):
+    # Unbudgeted, the cold fit draws num_proposals in each of its rounds; budgeted, one round
+    # of a warm frame's slice, and the frames after it propose at the warm cadence.
     from pearl_ros.online import segmenter as module
 
     drawn = []
     real = module.fit
 
     def spy(tracks, config, rng, **kwargs):
-        drawn.append(config.num_proposals * config.rounds if kwargs['propose'] else 0)
+        drawn.append((config.num_proposals, config.rounds, kwargs['propose']))
         return real(tracks, config, rng, **kwargs)
 
     monkeypatch.setattr(module, 'fit', spy)
-    frames = list(synthetic_stream(150, 40, (BodySpec(0.3),), seed=2))
-    online = dataclasses.replace(UNTIMED, budget_ms=1e-6, propose_every=1000)
-    run(frames, OnlineSegmenter(online=online))
-    config = PearlConfig()
-    total = config.num_proposals * config.rounds
-    slices = -(-total // online.warm_proposals)  # frames that draw until the total is drawn
-    assert drawn[0] == online.warm_proposals
-    assert sum(drawn[:slices]) >= total
-    assert all(drawn[:slices])
+    frames = list(synthetic_stream(150, 12, (BodySpec(0.3),), seed=2))
+    cold = PearlConfig()
+    for budget, first in ((0.0, (cold.num_proposals, cold.rounds, True)),
+                          (1e-6, (UNTIMED.warm_proposals, 1, True))):
+        drawn.clear()
+        run(frames, OnlineSegmenter(online=dataclasses.replace(UNTIMED, budget_ms=budget)))
+        assert drawn[0] == first
+        assert all(n == UNTIMED.warm_proposals and r == UNTIMED.warm_rounds
+                   for n, r, _ in drawn[1:])
