@@ -48,8 +48,8 @@ def test_two_motions_are_found_and_keep_their_numbers_through_births_deaths_and_
 
 def test_a_motion_starting_mid_stream_gets_a_fresh_number_and_the_background_keeps_its_own():
     # A known limit: a motion that starts under a settled single model is not always split off
-    # (seed 1 of this scene stays one model; docs/experiments.md, "Synthetic streams": objects found
-    # late or missed); seed 5 shows the identity rules.
+    # (seed 1 of this scene stays one model; docs/experiments.md, "Synthetic streams": objects
+    # found late or missed); seed 5 shows the identity rules.
     # The object holds 40% of the features: the background, the larger part of the old
     # segment, is the one that keeps its number.
     start = 15
