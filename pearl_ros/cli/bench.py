@@ -540,6 +540,7 @@ def _stream(args: argparse.Namespace) -> int:
 
 def _latency(args: argparse.Namespace) -> int:
     from pearl_ros.cli import bench_stream
+    from pearl_ros.evaluation import latency
 
     overrides, config, online = _online_configs(args.set)
     if min(args.scene_seeds) < 0:
@@ -547,7 +548,7 @@ def _latency(args: argparse.Namespace) -> int:
     if not 0 < args.rate < math.inf:
         raise InputError(f'--rate must be > 0 Hz, got {args.rate:g}')
     tokens = args.features or (['500'] if args.profile else ['300', '500', '1000', '2000'])
-    sizes = [bench_stream.parse_size(token, args.rate) for token in tokens]
+    sizes = [latency.parse_size(token, args.rate) for token in tokens]
     if min(args.windows) < 2 or args.frames <= max(args.windows):
         raise InputError('need windows >= 2 and frames > window')
     if args.profile:

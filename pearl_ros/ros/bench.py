@@ -1,7 +1,7 @@
 """``pearl_node_bench``: end-to-end latency of ``pearl_node``, publish -> labels received.
 
 A benchmark, not a test. One process, one single-threaded executor: a source node publishes a
-stream with ground truth (:func:`pearl_ros.cli.bench_stream.make_stream`: by default the
+stream with ground truth (:func:`pearl_ros.evaluation.latency.make_stream`: by default the
 robot-like stream, a moving camera with cars, a person and outlier tracks) as VINS-Mono
 PointClouds at a fixed rate, the node under test answers each with ``motion_labels``, and the
 source stamps each answer on arrival.
@@ -45,8 +45,8 @@ from sensor_msgs.msg import ChannelFloat32, PointCloud, PointCloud2
 from std_msgs.msg import Header
 
 from pearl_ros.bagio import decode, encode
-from pearl_ros.cli import bench_stream
 from pearl_ros.core.errors import InputError
+from pearl_ros.evaluation import latency
 from pearl_ros.pipeline import settings as pipeline_settings
 from pearl_ros.pipeline.messages import MessagePipeline, Skipped
 from pearl_ros.ros import convert
@@ -154,7 +154,7 @@ class Row:
     kind: str
     features: int
     rate_hz: float
-    stats: bench_stream.LatencyStats
+    stats: latency.LatencyStats
     mean_pct: float
     final_pct: float
 
@@ -185,8 +185,8 @@ def run_row(kind: str, make_node: Callable[[str], Node], messages: list[Any],
             item.destroy_node()
         executor.shutdown()
     latency_ms = [1e3 * source.latency_s[i] for i in sorted(source.latency_s)]
-    stats = bench_stream.latency_stats(latency_ms, len(messages), 1e3 / rate_hz)
-    mean, final = bench_stream.accuracy(source.labels, truth)
+    stats = latency.latency_stats(latency_ms, len(messages), 1e3 / rate_hz)
+    mean, final = latency.accuracy(source.labels, truth)
     return Row(kind, features, rate_hz, stats, mean, final)
 
 
@@ -229,7 +229,7 @@ def build_parser() -> argparse.ArgumentParser:
                         help='publication rate, Hz (default 30)')
     parser.add_argument('--frames', type=int, default=300, help='frames per run (default 300)')
     parser.add_argument('--seed', type=int, default=0, help='seed of the stream (default 0)')
-    parser.add_argument('--stream', choices=bench_stream.STREAMS, default='robot',
+    parser.add_argument('--stream', choices=latency.STREAMS, default='robot',
                         help='robot: moving camera, parallax, cars and a person, 10%% outlier '
                         'tracks (default); synthetic: rigid 2-D motions, births and deaths')
     parser.add_argument('--set', action='append', default=[], metavar='NAME=VALUE',
@@ -249,7 +249,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             raise InputError(f'--frames must be >= 2, got {args.frames}')
         if settings.node.msg_type != 'PointCloud':
             raise InputError('the benchmark publishes PointCloud: msg_type must stay PointCloud')
-        sizes = [bench_stream.parse_size(token, args.rate) for token in args.features]
+        sizes = [latency.parse_size(token, args.rate) for token in args.features]
     except InputError as err:
         print(f'error: {err}', file=sys.stderr)
         return 1
@@ -258,7 +258,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     rclpy.init(args=[])
     try:
         for features, rate in sizes:
-            stream = bench_stream.make_stream(args.stream, features, args.frames, args.seed)
+            stream = latency.make_stream(args.stream, features, args.frames, args.seed)
             messages = [vins_mono_cloud(f.stamp_ns, f.ids, f.uv) for f in stream]
             truth = [f.truth for f in stream]
             makers: dict[str, Callable[[str], Node]] = {

@@ -9,8 +9,9 @@ import numpy as np
 import pytest
 
 from pearl_ros.cli.bench import main
-from pearl_ros.cli.bench_stream import accuracy, latency_stats, paced, parse_size
+from pearl_ros.cli.bench_stream import paced
 from pearl_ros.core.errors import InputError
+from pearl_ros.evaluation.latency import accuracy, latency_stats, parse_size
 
 # Frames arrive at 8 Hz; every time below is a multiple of 1/32 s, exact in binary floating
 # point, so the schedules can be compared with ==.

@@ -9,7 +9,7 @@ import sys
 
 import numpy as np
 
-from pearl_ros.cli.bench_stream import make_stream
+from pearl_ros.evaluation.latency import make_stream
 from pearl_ros.ros.bench import main
 
 from ros_harness import REPO  # sets the test's domain id and local discovery first
