@@ -219,6 +219,8 @@ class _Search:
     origin : (K,) int64, the init segment each model stands for, OUTLIER for none
     prior : (N,) int64, each point's init segment, OUTLIER for none
     init_cost : float, cost units of the init term
+    fitted_to : list of (M,) int64 arrays or None, per model: the points it was last fitted
+        to (None for a proposal fitted to its minimal sample)
     """
 
     setting: _Setting
@@ -229,11 +231,14 @@ class _Search:
     origin: np.ndarray
     prior: np.ndarray
     init_cost: float
+    fitted_to: list[np.ndarray | None] = field(default_factory=list)
     unary: np.ndarray = field(init=False)  # (1 + K, N)
     bias: np.ndarray = field(init=False)  # (1 + K, N), read-only zeros without an init cost
     problem: Problem = field(init=False)
 
     def __post_init__(self) -> None:
+        if len(self.fitted_to) != self.params.shape[0]:
+            self.fitted_to = [None] * self.params.shape[0]
         self._tables()
 
     def _tables(self) -> None:
@@ -254,6 +259,7 @@ class _Search:
         self.sigmas = np.concatenate([self.sigmas, sigmas])
         self.residuals = np.concatenate([self.residuals, residuals])
         self.origin = np.concatenate([self.origin, origin])
+        self.fitted_to += [None] * params.shape[0]
         # Only the new models' rows are measured: the others' are unchanged.
         setting = self.setting
         rows = data_costs(residuals, sigmas, setting.dof, setting.floor)
@@ -266,18 +272,32 @@ class _Search:
         self.unary = np.concatenate([self.unary, rows])
         self.problem = setting.problem(self.unary)
 
-    def adopt(self, label: int, fitted: _Refit) -> None:
+    def adopt(self, label: int, fitted: _Refit, members: np.ndarray) -> None:
         """Model ``label`` becomes a refit of :func:`_refit_one` (params, noise level, residual
-        row, data cost row)."""
+        row, data cost row) to ``members``."""
         self.params[label - 1], self.sigmas[label - 1], self.residuals[label - 1] = fitted[:3]
         self.unary[label] = fitted[3] + self.bias[label]
+        self.fitted_to[label - 1] = members
+
+    def refitted_already(self, label: int, members: np.ndarray) -> bool:
+        """Whether a refit of model ``label`` to ``members`` would give the model it is: its
+        family refits in closed form and it was last fitted to these very points."""
+        last = self.fitted_to[label - 1]
+        return (not self.setting.model.refit_from_start and last is not None
+                and np.array_equal(last, members))
 
     def compress(self) -> None:
-        """Keep only the models in use, renumbered by decreasing support (:func:`_compress`)."""
+        """Keep only the models in use, renumbered by decreasing support (:func:`_compress`).
+        The kept models' rows of the cost tables are kept as they are."""
         self.labels, kept = _compress(self.labels)
         self.params, self.sigmas = self.params[kept], self.sigmas[kept]
         self.residuals, self.origin = self.residuals[kept], self.origin[kept]
-        self._tables()
+        self.fitted_to = [self.fitted_to[k] for k in kept.tolist()]
+        rows = np.concatenate([[OUTLIER_ROW], kept + 1])
+        self.unary = self.unary[rows]
+        self.bias = self.bias[rows] if self.init_cost else _init_bias(self.prior, self.origin,
+                                                                      0.0)
+        self.problem = self.setting.problem(self.unary)
 
 
 def _start(setting: _Setting, init: np.ndarray | None, init_cost: float) -> _Search:
@@ -292,8 +312,10 @@ def _start(setting: _Setting, init: np.ndarray | None, init_cost: float) -> _Sea
                        prior=np.full(n, OUTLIER, dtype=np.int64), init_cost=init_cost)
     prior = _check_labels(init, n)
     params, sigmas, residuals, labels = _segment_models(setting, prior)
+    fitted_to: list[np.ndarray | None] = [np.flatnonzero(labels == k + 1)
+                                          for k in range(params.shape[0])]
     return _Search(setting, labels, params, sigmas, residuals,
-                   _origins(labels, prior, params.shape[0]), prior, init_cost)
+                   _origins(labels, prior, params.shape[0]), prior, init_cost, fitted_to)
 
 
 def fit(
@@ -614,17 +636,21 @@ def _refit_one(setting: _Setting, members: np.ndarray, start: np.ndarray) -> _Re
 
 def _refit(search: _Search) -> int:
     """Re-estimate every model in use, and its noise level, from its points; keep a refit only
-    if it lowers their cost, so the energy never goes up. Returns the models refitted."""
+    if it lowers their cost, so the energy never goes up. A model already fitted to the same
+    points in closed form is left as it is (its refit would be itself). Returns the models
+    refitted."""
     labels, unary, bias = search.labels, search.unary, search.bias
     refitted = 0
     for label in np.unique(labels):
         if label == OUTLIER_ROW:
             continue
         members = np.flatnonzero(labels == label)
+        if search.refitted_already(label, members):
+            continue
         fitted = _refit_one(search.setting, members, search.params[label - 1])
         if fitted is not None and (fitted[3][members].sum()
                                    < unary[label, members].sum() - bias[label, members].sum()):
-            search.adopt(label, fitted)
+            search.adopt(label, fitted, members)
             refitted += 1
     return refitted
 
@@ -649,7 +675,7 @@ def _split(search: _Search, deadline: float | None = None) -> int:
         if trial is not None and trial[2] < current - 1e-9:
             search.labels, refits, current = trial
             for label, fitted in refits.items():
-                search.adopt(label, fitted)
+                search.adopt(label, fitted, np.flatnonzero(search.labels == label))
             kept += 1
     return kept
 
@@ -723,7 +749,7 @@ def _merge(search: _Search, deadline: float | None = None) -> int:
     while not _past(deadline) and (best := _best_merge(search, deadline)) is not None:
         keep, drop, fitted = best
         search.labels = np.where(search.labels == drop, keep, search.labels)
-        search.adopt(keep, fitted)
+        search.adopt(keep, fitted, np.flatnonzero(search.labels == keep))
         merges += 1
     return merges
 

@@ -319,3 +319,27 @@ def test_a_sigma_ceiling_bounds_every_model_noise_level(affine_scene) -> None:
     capped = fit(tracks, PearlConfig(solver=SolverSettings(sigma_ceiling=4.0)), rng=0)
     assert capped.scale == free.scale
     assert capped.sigmas.max() <= 4.0 * capped.scale * (1 + 1e-12)
+
+
+def test_closed_form_models_already_fitted_to_their_points_are_not_refitted(affine_scene,
+                                                                          monkeypatch):
+    # Oracle: the same fit with the shortcut disabled. An affine refit depends on its points
+    # only, so skipping one whose points did not change must leave every result bit for bit.
+    tracks, truth = affine_scene(sizes=(120, 90, 80), noise=0.5, seed=5)
+    calls = []
+    real = pearl._refit_one
+
+    def counted(setting, members, start):
+        calls.append(members.size)
+        return real(setting, members, start)
+
+    monkeypatch.setattr(pearl, '_refit_one', counted)
+    fast = fit(tracks, rng=0, init=truth, init_cost=2.0)
+    skipped_calls = len(calls)
+    calls.clear()
+    monkeypatch.setattr(pearl._Search, 'refitted_already', lambda self, label, members: False)
+    slow = fit(tracks, rng=0, init=truth, init_cost=2.0)
+    assert skipped_calls < len(calls)
+    assert np.array_equal(fast.labels, slow.labels)
+    assert np.array_equal(fast.params, slow.params)
+    assert fast.energy == slow.energy

@@ -16,7 +16,7 @@ University Press, 2003: sec. 4.1 (DLT), 4.2.6 (Sampson error), 4.4 (normalisatio
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import NamedTuple
+from typing import ClassVar, NamedTuple
 
 import numpy as np
 from scipy.optimize import least_squares
@@ -230,6 +230,7 @@ class TwoViewModel:
     """
 
     min_samples: int
+    refit_from_start: ClassVar[bool] = True  # Levenberg-Marquardt from the given params
 
     def __init__(self, settings: SolverSettings | None = None) -> None:
         settings = settings or SolverSettings()

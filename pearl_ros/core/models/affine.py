@@ -35,6 +35,7 @@ class AffineSubspace:
 
     name: ClassVar[str] = 'affine'
     min_samples = 4
+    refit_from_start: ClassVar[bool] = False  # principal components of the inliers
     dim = 3
 
     def __init__(self, settings: SolverSettings | None = None) -> None:

@@ -25,10 +25,15 @@ class MotionModel(Protocol):
         Registry name (``'affine'``, ``'fundamental'``, ``'homography'``).
     min_samples : int
         Points in a minimal sample.
+    refit_from_start : bool
+        Whether :meth:`refit` depends on its starting ``params`` (an iterative refinement) or
+        only on the inliers (a closed form): a closed-form refit of the same inliers is the
+        model it was, and the optimiser skips it.
     """
 
     name: ClassVar[str]
     min_samples: int
+    refit_from_start: ClassVar[bool]
 
     def data(self, tracks: np.ndarray) -> np.ndarray:
         """Per-point rows ``(N, D)`` from ``tracks`` ``(F, N, 2)`` in pixels."""
