@@ -111,14 +111,16 @@ def sweep(problem: Problem, labels: np.ndarray, settings: SolverSettings | None 
     screen that skips the many proposals that cannot pay for themselves, so a sweep costs a few
     moves, not one per proposal. At most ``settings.max_passes`` passes; a pass ends after
     ``settings.max_failed`` unused labels in a row fail to lower the energy. Past the
-    ``deadline`` (a ``time.perf_counter()`` value) no further move starts once one has run,
-    unless every point is still an outlier.
+    ``deadline`` (a ``time.perf_counter()`` value) the sweep only relabels with the labels in
+    use when it started, once each (the first pass's first moves), unless every point is
+    still an outlier.
     """
     settings = settings or SolverSettings()
     unary, costs = problem.unary, problem.label_costs
     current = energy(problem, labels)
-    moves = 0
-    for _ in range(settings.max_passes):
+    in_use = np.zeros(unary.shape[0], dtype=bool)
+    in_use[labels] = True
+    for sweep_pass in range(settings.max_passes):
         changed = False
         tried = np.zeros(unary.shape[0], dtype=bool)
         failed = 0  # unused labels rejected in a row
@@ -132,10 +134,10 @@ def sweep(problem: Problem, labels: np.ndarray, settings: SolverSettings | None 
             alpha = int(np.argmax(gain))
             if not gain[alpha] > 0 or (failed >= settings.max_failed and not used[alpha]):
                 break
-            if moves and _past(deadline) and np.any(labels != problem.outlier_row):
+            if (_past(deadline) and (sweep_pass or not in_use[alpha])
+                    and np.any(labels != problem.outlier_row)):
                 return labels
             tried[alpha] = True
-            moves += 1
             moved = expansion_move(problem, labels, alpha)
             moved_energy = energy(problem, moved)
             if moved_energy < current - 1e-9:
@@ -342,10 +344,10 @@ def fit(
         optimal models with a new batch of samples" across calls (Isack, sec. 2.3.3).
     deadline : float, optional
         ``time.perf_counter()`` value after which no further alpha-expansion, split or merge
-        trial, expand / re-estimate iteration or proposal round starts; one expansion move
-        and one split trial always run, and more moves until a point has a model. Each model
-        in use is still re-estimated once. The result is then no longer a function of the seed
-        alone.
+        trial, expand / re-estimate iteration or proposal round starts; the labels in use are
+        still expanded once each (more moves run only while every point is an outlier), one
+        split trial runs and each model in use is re-estimated once. The result is then no
+        longer a function of the seed alone.
     init_cost : float, cost units, >= 0
         With ``init``: a term ``init_cost * [f_p != init model of p]`` added to the energy for
         every point with an init segment, which keeps labels from flickering between calls
