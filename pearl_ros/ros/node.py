@@ -265,13 +265,12 @@ class PearlNode(Node):
             raise
         self._pipeline = MessagePipeline(settings, convert.TYPES)
         self.stats = Stats()
-        self._throttle = runner.Throttle(self)  # one warning per kind per WARN_PERIOD_S
+        self._warn = runner.Throttle(self).warn  # one warning per kind per WARN_PERIOD_S
         # Shared between the executor's thread and the worker's. Taken in this order when
-        # nested; `_lock` and `_warn_lock` are only held for a few statements.
+        # nested; `_lock` is only held for a few statements.
         self._pipeline_lock = threading.Lock()  # the pipeline: a frame, ~/reset, a new setting
         self._image_lock = threading.Lock()  # the StampMatcher and the Overlay
         self._lock = threading.Lock()  # self.stats
-        self._warn_lock = threading.Lock()  # self._throttle
 
         node = settings.node
         self._mailbox = Mailbox(node.queue_policy, node.qos_depth)
@@ -469,11 +468,6 @@ class PearlNode(Node):
             self.stats.bad_images += 1
             self.stats.period_bad_images += 1
         self._warn('image', text)
-
-    def _warn(self, kind: str, text: str) -> None:
-        """A warning, at most one of each ``kind`` per :data:`runner.WARN_PERIOD_S`."""
-        with self._warn_lock:
-            self._throttle.warn(kind, text)
 
     @contextmanager
     def _quiet_after_shutdown(self) -> Iterator[None]:

@@ -9,6 +9,7 @@ from __future__ import annotations
 import math
 import signal
 import sys
+import threading
 import time
 from collections.abc import Callable, Mapping
 from types import FrameType
@@ -32,22 +33,24 @@ WARN_PERIOD_S = 5.0  # s, at most one warning of each kind this often
 
 class Throttle:
     """One warning of each kind per :data:`WARN_PERIOD_S`, counting the
-    suppressed ones."""
+    suppressed ones. Thread-safe (pearl_node warns from its worker and its executor)."""
 
     def __init__(self, node: Node) -> None:
         self._node = node
         self._warned: dict[str, tuple[float, int]] = {}  # kind -> (last time, suppressed)
+        self._lock = threading.Lock()
 
     def warn(self, kind: str, text: str) -> None:
-        now = time.monotonic()
-        last, suppressed = self._warned.get(kind, (-math.inf, 0))
-        if now - last < WARN_PERIOD_S:
-            self._warned[kind] = (last, suppressed + 1)
-            return
-        if suppressed:
-            text += f' ({suppressed} more like it in the last {now - last:.0f} s)'
-        self._warned[kind] = (now, 0)
-        self._node.get_logger().warning(text)
+        with self._lock:
+            now = time.monotonic()
+            last, suppressed = self._warned.get(kind, (-math.inf, 0))
+            if now - last < WARN_PERIOD_S:
+                self._warned[kind] = (last, suppressed + 1)
+                return
+            if suppressed:
+                text += f' ({suppressed} more like it in the last {now - last:.0f} s)'
+            self._warned[kind] = (now, 0)
+            self._node.get_logger().warning(text)
 
 
 class StopRequest:
