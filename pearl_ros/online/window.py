@@ -88,12 +88,20 @@ class SlidingWindow:
         coords = np.full((len(self._frames), keys.size, 2), np.nan)
         age = np.zeros(keys.size, dtype=np.int64)
         for f, frame in enumerate(self._frames):
-            pos = np.searchsorted(frame.keys, keys)
-            pos = np.minimum(pos, max(frame.keys.size - 1, 0))
-            found = frame.keys[pos] == keys if frame.keys.size else np.zeros(keys.size, bool)
+            pos, found = find(frame.keys, keys)
             coords[f, found] = frame.uv[pos[found]]
             age += found
         return coords, age
+
+
+def find(sorted_keys: np.ndarray, queries: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Where each of ``queries`` is in ``sorted_keys`` (unique, ascending): positions ``(Q,)``
+    int, meaningful where ``found`` ``(Q,)`` bool is true."""
+    if sorted_keys.size == 0:
+        return np.zeros(queries.size, dtype=np.int64), np.zeros(queries.size, dtype=bool)
+    pos = np.minimum(np.searchsorted(sorted_keys, queries), sorted_keys.size - 1)
+    found: np.ndarray = sorted_keys[pos] == queries
+    return pos, found
 
 
 def lookup(sorted_keys: np.ndarray, values: np.ndarray, queries: np.ndarray,
@@ -101,9 +109,6 @@ def lookup(sorted_keys: np.ndarray, values: np.ndarray, queries: np.ndarray,
     """``values`` at the positions of ``queries`` in ``sorted_keys`` (unique, ascending),
     ``missing`` for a query not among them, ``(Q,)`` int64."""
     out = np.full(queries.size, missing, dtype=np.int64)
-    if sorted_keys.size == 0 or queries.size == 0:
-        return out
-    pos = np.minimum(np.searchsorted(sorted_keys, queries), sorted_keys.size - 1)
-    found = sorted_keys[pos] == queries
+    pos, found = find(sorted_keys, queries)
     out[found] = values[pos[found]]
     return out
