@@ -233,14 +233,12 @@ class _Search:
     origin: np.ndarray
     prior: np.ndarray
     init_cost: float
-    fitted_to: list[np.ndarray | None] = field(default_factory=list)
+    fitted_to: list[np.ndarray | None]
     unary: np.ndarray = field(init=False)  # (1 + K, N)
     bias: np.ndarray = field(init=False)  # (1 + K, N), read-only zeros without an init cost
     problem: Problem = field(init=False)
 
     def __post_init__(self) -> None:
-        if len(self.fitted_to) != self.params.shape[0]:
-            self.fitted_to = [None] * self.params.shape[0]
         self._tables()
 
     def _tables(self) -> None:
@@ -297,8 +295,7 @@ class _Search:
         self.fitted_to = [self.fitted_to[k] for k in kept.tolist()]
         rows = np.concatenate([[OUTLIER_ROW], kept + 1])
         self.unary = self.unary[rows]
-        self.bias = self.bias[rows] if self.init_cost else _init_bias(self.prior, self.origin,
-                                                                      0.0)
+        self.bias = _init_bias(self.prior, self.origin, self.init_cost)
         self.problem = self.setting.problem(self.unary)
 
 
@@ -311,7 +308,8 @@ def _start(setting: _Setting, init: np.ndarray | None, init_cost: float) -> _Sea
                        params=np.empty((0,) + _param_shape(setting.model, setting.data)),
                        sigmas=np.empty(0), residuals=np.empty((0, n)),
                        origin=np.empty(0, dtype=np.int64),
-                       prior=np.full(n, OUTLIER, dtype=np.int64), init_cost=init_cost)
+                       prior=np.full(n, OUTLIER, dtype=np.int64), init_cost=init_cost,
+                       fitted_to=[])
     prior = _check_labels(init, n)
     params, sigmas, residuals, labels = _segment_models(setting, prior)
     fitted_to: list[np.ndarray | None] = [np.flatnonzero(labels == k + 1)
