@@ -124,6 +124,17 @@ class SolverSettings:
         1.0, 'share of its weight a neighbour pair pays when cut with one end an outlier (1: '
         'plain Potts; below 0.5 the expansions of the outlier label truncate the pairs it '
         'breaks)', low=0.0, high=1.0)
+    outlier_apart: bool = spec(
+        True, 'an outlier earns the reward of every neighbour pair that moves apart, whatever '
+        'its neighbour\'s label (each outlier its own motion)')
+    isolation: float = spec(
+        20.0, 'a point whose most alike neighbour misses it by more than this many times the '
+        'lower quartile of such misses (and isolation_floor noise scales) is isolated: its '
+        'outlier cost is that of a uniform density over the image, and it leaves the noise '
+        'scale and the pair unit; 0 = off', low=0.0, high=1e6)
+    isolation_floor: float = spec(
+        5.0, 'noise scales: a point whose most alike neighbour misses it by less is never '
+        'isolated', low=0.0, high=1e6)
     sigma_ceiling: float = spec(
         0.0, 'most noise level a model may claim, in units of the noise scale; 0 = none',
         low=0.0, high=1e6)

@@ -89,8 +89,8 @@ def patch_residuals(data: np.ndarray, edges: np.ndarray, neighbours: np.ndarray,
 
 
 def edge_weights(residuals: np.ndarray, scale: float, smoothness: float, separation: float,
-                 contrast: float, quantile: float, stretch: np.ndarray | None = None
-                 ) -> np.ndarray:
+                 contrast: float, quantile: float, stretch: np.ndarray | None = None,
+                 counted: np.ndarray | None = None) -> np.ndarray:
     """Signed Potts weights ``lambda w - mu (1 - w)``, ``w = exp(-(r / (contrast u))^2)``.
 
     A cut edge between neighbours that move alike (``w`` near 1) costs ``smoothness``; one
@@ -100,10 +100,13 @@ def edge_weights(residuals: np.ndarray, scale: float, smoothness: float, separat
     points of one body, and their miss also holds what the noise level leaves out
     (perspective, non-rigid parts, tracker drift). ``residuals`` from :func:`patch_residuals`;
     ``contrast`` in units; ``quantile`` is ``PearlConfig.unit_quantile``; ``stretch`` (E,) >= 1
-    multiplies each edge's unit (:func:`long_edge_stretch`).
+    multiplies each edge's unit (:func:`long_edge_stretch`); ``counted`` (E,) bool, if given,
+    the edges whose misses the quantile is taken over (the others touch an isolated point, and
+    the misses of gross outliers would otherwise set the unit of every edge).
     """
-    unit: float | np.ndarray = (max(scale, float(np.quantile(residuals, quantile)))
-                                if residuals.size else scale)
+    sample = residuals if counted is None else residuals[counted]
+    unit: float | np.ndarray = (max(scale, float(np.quantile(sample, quantile)))
+                                if sample.size else scale)
     if stretch is not None:
         unit = unit * stretch
     alike = np.exp(-np.square(residuals / (contrast * unit)))

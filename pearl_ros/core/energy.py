@@ -29,6 +29,10 @@ class Problem:
     outlier_tie : float in [0, 1], the share of its weight a pair pays when it is cut with one
         end on the outlier row (1: plain Potts). Below 1/2 the term is no longer a metric, and
         expansions of the outlier label truncate the pairs it breaks.
+    outlier_apart : bool, an outlier earns the reward of a pair with a negative weight whatever
+        its neighbour's label, another outlier's included: outliers are not one motion whose
+        members should stay together, and the reward of a point that moves unlike its
+        neighbours should not need a model of its own to collect.
     """
 
     unary: np.ndarray
@@ -37,6 +41,7 @@ class Problem:
     label_costs: np.ndarray
     outlier_row: int = -1
     outlier_tie: float = 1.0
+    outlier_apart: bool = False
 
     @property
     def num_points(self) -> int:
@@ -46,9 +51,12 @@ class Problem:
 def pair_costs(problem: Problem, a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """The pair term of every edge, ``(E,)``, when its two ends hold labels ``a`` and ``b``."""
     cost: np.ndarray = problem.weights * (a != b)
-    if problem.outlier_tie != 1.0:
-        touches = (a == problem.outlier_row) | (b == problem.outlier_row)
-        cost = np.where(touches, problem.outlier_tie * cost, cost)
+    if problem.outlier_tie == 1.0 and not problem.outlier_apart:
+        return cost
+    touches = (a == problem.outlier_row) | (b == problem.outlier_row)
+    cost = np.where(touches, problem.outlier_tie * cost, cost)
+    if problem.outlier_apart:
+        cost = np.where(touches & (problem.weights < 0), problem.weights, cost)
     return cost
 
 
@@ -56,7 +64,7 @@ def energy(problem: Problem, labels: np.ndarray) -> float:
     """E(f) of ``labels`` (N,) int, indices into the rows of ``problem.unary``."""
     data = problem.unary[labels, np.arange(labels.size)].sum()
     p, q = problem.edges[:, 0], problem.edges[:, 1]
-    if problem.outlier_tie == 1.0:  # plain Potts: the sum over cut edges, as it always was
+    if problem.outlier_tie == 1.0 and not problem.outlier_apart:  # plain Potts: cut edges
         smooth = problem.weights[labels[p] != labels[q]].sum()
     else:
         smooth = pair_costs(problem, labels[p], labels[q]).sum()

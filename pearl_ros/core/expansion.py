@@ -34,22 +34,24 @@ def expansion_move(problem: Problem, labels: np.ndarray, alpha: int) -> np.ndarr
 
     # Pairwise Potts terms
     #   E(x_p, x_q) = A + (C - A) x_p + (D - C) x_q + (B + C - A - D)(1 - x_p) x_q
-    # with A = E00, B = E01, C = E10, D = E11 = 0 (Kolmogorov & Zabih 2004).
+    # with A = E00, B = E01, C = E10, D = E11 (Kolmogorov & Zabih 2004). D is 0 under Potts; a
+    # pair of outliers that move apart earns its reward (Problem.outlier_apart), so D is not 0
+    # when alpha is the outlier label.
     p, q = problem.edges[:, 0], problem.edges[:, 1]
     # A negative weight, or a pair cut with the outlier label paying less than half its weight
-    # (Problem.outlier_tie), makes the term non-submodular (pair < 0 below). Such an edge is
+    # (Problem.outlier_tie), can make the term non-submodular (pair < 0 below). Such an edge is
     # truncated: its pair term is left out, which overstates the cost of "p keeps, q switches"
     # by -pair and leaves the three other cases exact. So that the case kept exact is the
     # likelier one, p is made the end that gains more by switching.
-    e00, e01, e10 = _pair_cases(problem, labels[p], labels[q], alpha)
-    risky = e01 + e10 - e00 < 0
+    e00, e01, e10, e11 = _pair_cases(problem, labels[p], labels[q], alpha)
+    risky = e01 + e10 - e00 - e11 < 0
     gain = cost_keep - cost_switch
     flip = risky & (gain[q] > gain[p])
     p, q = np.where(flip, q, p), np.where(flip, p, q)
     e01, e10 = np.where(flip, e10, e01), np.where(flip, e01, e10)  # V is symmetric
     _add_unary(src, snk, p, e10 - e00)
-    _add_unary(src, snk, q, -e10)
-    pair = e01 + e10 - e00  # >= 0 but on truncated edges: the move is submodular
+    _add_unary(src, snk, q, e11 - e10)
+    pair = e01 + e10 - e00 - e11  # >= 0 but on truncated edges: the move is submodular
 
     # Label costs. A used label l != alpha is paid unless all its points switch: an auxiliary
     # node y_l that can sit on the sink side ("l is gone", no cost) only if every point of l does.
@@ -93,12 +95,12 @@ def expansion_move(problem: Problem, labels: np.ndarray, alpha: int) -> np.ndarr
 
 
 def _pair_cases(problem: Problem, a: np.ndarray, b: np.ndarray, alpha: int
-                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Pair terms of every edge with ends at labels ``a``, ``b``: both keep (E00), only the
-    second switches to ``alpha`` (E01), only the first does (E10); both switching costs 0."""
+    second switches to ``alpha`` (E01), only the first does (E10), both do (E11)."""
     to_alpha = np.full_like(a, alpha)
     return (pair_costs(problem, a, b), pair_costs(problem, a, to_alpha),
-            pair_costs(problem, to_alpha, b))
+            pair_costs(problem, to_alpha, b), pair_costs(problem, to_alpha, to_alpha))
 
 
 def _add_unary(src: np.ndarray, snk: np.ndarray, nodes: np.ndarray, coef: np.ndarray) -> None:

@@ -40,6 +40,14 @@ class Neighbourhood:
                 self.edges.size and not 0 <= self.edges.min() <= self.edges.max() < num_points):
             raise InputError('neighbourhood edges and misses do not match')
 
+    def nearest_miss(self) -> np.ndarray:
+        """Each point's least miss over its edges ``(N,)``, pixels (inf for a point with none):
+        how far it is from moving like its most alike neighbour."""
+        nearest = np.full(self.neighbours.shape[0], np.inf)
+        for end in (0, 1):
+            np.minimum.at(nearest, self.edges[:, end], self.misses)
+        return nearest
+
 
 def neighbourhood(tracks: np.ndarray, ids: np.ndarray | None = None,
                   previous: Neighbourhood | None = None,

@@ -184,7 +184,7 @@ class _Setting:
     floor: float  # px, least noise level a model may claim
     ceiling: float  # px, most noise level a model may claim (inf: none)
     dof: float  # E[r^2] / sigma^2 of the model's residuals
-    outlier_cost: float
+    outlier_cost: np.ndarray  # (N,) the outlier label's data cost of each point
     label_cost: float
 
     def unary(self, residuals: np.ndarray, sigmas: np.ndarray) -> np.ndarray:
@@ -192,13 +192,13 @@ class _Setting:
         the outlier row, then one row per model."""
         n = self.data.shape[0]
         rows = data_costs(residuals, sigmas, self.dof, self.floor)
-        return np.vstack([np.full((1, n), self.outlier_cost), rows])
+        return np.vstack([np.broadcast_to(self.outlier_cost, (1, n)), rows])
 
     def problem(self, unary: np.ndarray) -> Problem:
         costs = np.full(unary.shape[0], self.label_cost)
         costs[OUTLIER_ROW] = 0.0
         return Problem(unary, self.edges, self.weights, costs, OUTLIER_ROW,
-                       self.solver.outlier_tie)
+                       self.solver.outlier_tie, self.solver.outlier_apart)
 
 
 @dataclass(eq=False)
@@ -550,7 +550,9 @@ def _setting(tracks: np.ndarray, config: PearlConfig, rng: np.random.Generator,
     else:
         graph.check(n)
     edges, neighbours = graph.edges, graph.neighbours
-    scale = config.noise or _estimate_scale(model, data, neighbours, config, rng)
+    suspect = _suspects(graph, solver.isolation)
+    scale = config.noise or _estimate_scale(model, data, neighbours, config, rng, suspect,
+                                            tracks[-1])
     dof = model.residual_dof(data)
     floor = solver.sigma_floor * scale
     ceiling = solver.sigma_ceiling * scale if solver.sigma_ceiling else math.inf
@@ -558,33 +560,71 @@ def _setting(tracks: np.ndarray, config: PearlConfig, rng: np.random.Generator,
     # outlier_threshold of those levels.
     outlier_cost = float(data_costs(np.array([[config.outlier_threshold * scale]]),
                                     np.array([scale]), dof, floor)[0, 0])
+    costs = np.full(n, outlier_cost)
+    counted = None
+    if suspect is not None:
+        isolated = suspect & (graph.nearest_miss() > solver.isolation_floor * scale)
+        span = float(np.ptp(tracks.reshape(-1, 2), axis=0).max())
+        uniform = dof * (2.0 * math.log(max(span, floor) / floor) - math.log(2.0 * math.pi))
+        costs[isolated] = min(outlier_cost, max(uniform, 0.0))
+        kept = ~(isolated[edges[:, 0]] | isolated[edges[:, 1]])
+        if np.any(kept):
+            counted = kept
     stretch = long_edge_stretch(tracks, edges, neighbours, config.long_edge_growth, solver)
     return _Setting(
         model=model, solver=solver, data=data, edges=edges,
         weights=edge_weights(graph.misses, scale, config.smoothness, config.separation,
-                             config.contrast, config.unit_quantile, stretch),
+                             config.contrast, config.unit_quantile, stretch,
+                             counted),
         neighbours=neighbours, scale=scale, floor=floor, ceiling=ceiling, dof=dof,
-        outlier_cost=outlier_cost,
+        outlier_cost=costs,
         label_cost=config.label_cost * model.label_cost_weight(data))
 
 
 def noise_scale(tracks: np.ndarray, config: PearlConfig | None = None,
-                rng: np.random.Generator | int | None = None) -> float:
+                rng: np.random.Generator | int | None = None,
+                graph: Neighbourhood | None = None) -> float:
     """The noise scale (px) :func:`fit` estimates when ``config.noise`` is 0.
 
     Callers that fit similar data again and again (the online segmenter) estimate it once and
-    pass it on as ``config.noise``, saving the setup cost of every fit.
+    pass it on as ``config.noise``, saving the setup cost of every fit. With the ``graph`` of
+    ``tracks`` that :func:`fit` is given, the points it finds isolated
+    (``SolverSettings.isolation``) are left out as they are in :func:`fit`.
     """
     config = config or PearlConfig()
     model = get_model(config.model, config.solver)
     data = model.data(tracks)
     anchor = np.asarray(tracks, dtype=np.float64)[-1]
-    neighbours = nearest_neighbours(anchor, config.solver.image_neighbours)
-    return _estimate_scale(model, data, neighbours, config, np.random.default_rng(rng))
+    neighbours, suspect = nearest_neighbours(anchor, config.solver.image_neighbours), None
+    if graph is not None:
+        graph.check(data.shape[0])
+        suspect = _suspects(graph, config.solver.isolation)
+    return _estimate_scale(model, data, neighbours, config, np.random.default_rng(rng),
+                           suspect, anchor)
+
+
+def _suspects(graph: Neighbourhood, isolation: float) -> np.ndarray | None:
+    """Points ``(N,)`` bool whose most alike neighbour misses them by more than ``isolation``
+    times the lower quartile of such misses (None when ``isolation`` is 0)."""
+    if not isolation or not graph.edges.size:
+        return None
+    nearest = graph.nearest_miss()
+    core = float(np.quantile(nearest[np.isfinite(nearest)], 0.25))
+    suspect: np.ndarray = nearest > isolation * core
+    return suspect
 
 
 def _estimate_scale(model: MotionModel, data: np.ndarray, neighbours: np.ndarray,
-                    config: PearlConfig, rng: np.random.Generator) -> float:
+                    config: PearlConfig, rng: np.random.Generator,
+                    suspect: np.ndarray | None = None, anchor: np.ndarray | None = None) -> float:
+    """The noise scale of :func:`local_scale`; with ``suspect`` points (N,) and every point's
+    image position ``anchor`` (N, 2), from the neighbourhoods of the other points among
+    themselves, so that points that move unlike all their neighbours do not inflate it."""
+    if (suspect is not None and anchor is not None
+            and np.count_nonzero(~suspect) > neighbours.shape[1] + 1):
+        kept = np.flatnonzero(~suspect)
+        neighbours = nearest_neighbours(anchor[kept], neighbours.shape[1])
+        data = data[kept]
     return max(local_scale(model, data, neighbours, rng, config.solver.scale_seeds,
                            config.solver.scale_trim), config.min_noise)
 

@@ -195,11 +195,23 @@ class OnlineSegmenter:
     def _fit(self, tracks: np.ndarray, keys: np.ndarray, model_name: str, prior: np.ndarray,
              warm: bool, start: float) -> np.ndarray:
         """Segment ``tracks`` (of the tracks ``keys``); returns 0..K-1 per track, -1 outliers."""
-        noise = self.config.noise or self._scale(tracks, model_name)
+        # Fresh proposals on a cold fit and on every propose_every-th warm one; the warm frames
+        # between only relabel and refit the motions already there, unless the energy per
+        # feature rose since the last proposals (a motion starting, say): then the next frame
+        # proposes.
+        propose = not warm or self._quiet + 1 >= self.online.propose_every
+        # The frames between proposals reuse the last frame's neighbour edges when the same
+        # features are fitted (Delaunay and k-d tree: 2 ms of a 480-feature frame); a frame
+        # with proposals builds them anew.
+        previous = None
+        if not propose and self._graph is not None and self._graph[0] == model_name:
+            previous = self._graph[1]
+        graph = neighbourhood(tracks, keys, previous, self.config.solver)
+        self._graph = (model_name, graph)
+        noise = self.config.noise or self._scale(tracks, model_name, graph)
         init = None
         budget = self.online.budget_ms
         deadline = start + budget / 1e3 if budget > 0 else None
-        online = self.online
         if warm:
             config = self._config(model_name, noise, 'warm')
             _, init = np.unique(prior, return_inverse=True)
@@ -211,19 +223,6 @@ class OnlineSegmenter:
             config = self._config(model_name, noise, 'slice')
         else:
             config = self._config(model_name, noise, 'cold')
-        # Fresh proposals on a cold fit and on every propose_every-th warm one; the warm frames
-        # between only relabel and refit the motions already there, unless the energy per
-        # feature rose since the last proposals (a motion starting, say): then the next frame
-        # proposes.
-        propose = not warm or self._quiet + 1 >= online.propose_every
-        # The frames between proposals reuse the last frame's neighbour edges when the same
-        # features are fitted (Delaunay and k-d tree: 2 ms of a 480-feature frame); a frame
-        # with proposals builds them anew.
-        previous = None
-        if not propose and self._graph is not None and self._graph[0] == model_name:
-            previous = self._graph[1]
-        graph = neighbourhood(tracks, keys, previous, config.solver)
-        self._graph = (model_name, graph)
         result = fit(tracks, config, self._rng, init=init, deadline=deadline,
                      init_cost=self.online.temporal_cost if warm else 0.0, propose=propose,
                      graph=graph)
@@ -255,7 +254,7 @@ class OnlineSegmenter:
             self._configs = (key, config)
         return self._configs[1]
 
-    def _scale(self, tracks: np.ndarray, model_name: str) -> float:
+    def _scale(self, tracks: np.ndarray, model_name: str, graph: Neighbourhood) -> float:
         """The noise scale of ``model_name``, estimated again every ``rescale_every`` frames
         (solver settings): it changes slowly, and estimating it costs more than a warm-started
         fit."""
@@ -263,7 +262,7 @@ class OnlineSegmenter:
         scale, age = self._scales.get(model_name, (0.0, every))
         if age >= every:
             config = dataclasses.replace(self.config, model=model_name)
-            scale, age = noise_scale(tracks, config, self._rng), 0
+            scale, age = noise_scale(tracks, config, self._rng, graph), 0
         self._scales[model_name] = (scale, age + 1)
         return scale
 

@@ -1,0 +1,155 @@
+"""Outliers on their own: isolated points and the pairs an outlier keeps apart.
+
+``SolverSettings.isolation`` gives a point that moves unlike every neighbour the outlier cost of
+a uniform density over the image; ``SolverSettings.outlier_apart`` lets an outlier earn the
+reward of every pair that moves apart, whatever its neighbour's label.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import itertools
+import math
+
+import numpy as np
+import pytest
+
+from pearl_ros.core import pearl
+from pearl_ros.core.config import PearlConfig, SolverSettings
+from pearl_ros.core.energy import Problem, energy
+from pearl_ros.core.expansion import expansion_move
+from pearl_ros.core.labels import OUTLIER
+from pearl_ros.core.metrics import misclassification
+from pearl_ros.core.neighbourhood import neighbourhood
+
+
+def test_an_outlier_earns_the_reward_of_a_pair_that_moves_apart_whatever_its_neighbour():
+    unary = np.zeros((3, 3))
+    edges = np.array([[0, 1], [1, 2]])
+    weights = np.array([-4.0, 6.0])  # pair 0-1 moves apart, pair 1-2 alike
+    plain = Problem(unary, edges, weights, np.zeros(3), outlier_row=0)
+    apart = dataclasses.replace(plain, outlier_apart=True)
+    # Points 0 and 1 both outliers: plain Potts sees one label, no cut and no reward.
+    assert energy(plain, np.array([0, 0, 0])) == 0.0
+    assert energy(apart, np.array([0, 0, 0])) == pytest.approx(-4.0)
+    # Sharing a motion forgoes the reward either way; an alike pair cut next to an outlier
+    # still pays its weight.
+    assert energy(apart, np.array([1, 1, 0])) == pytest.approx(6.0)
+    assert energy(apart, np.array([0, 1, 1])) == pytest.approx(-4.0)
+    assert energy(apart, np.array([2, 1, 1])) == pytest.approx(-4.0)
+
+
+def _brute_force(problem: Problem, labels: np.ndarray, alpha: int) -> float:
+    return min(energy(problem, np.where(np.array(switch, dtype=bool), alpha, labels))
+               for switch in itertools.product([False, True], repeat=labels.size))
+
+
+@pytest.mark.parametrize('seed', range(10))
+def test_with_outliers_apart_a_move_never_raises_the_energy_nor_beats_brute_force(seed):
+    # Two outliers that move apart earn a reward when both switch to the outlier label (E11 is
+    # not 0): the move must account for it. Truncated terms may leave it short of the best move,
+    # never below it and never above standing still.
+    rng = np.random.default_rng(300 + seed)
+    short = 0
+    for _ in range(10):
+        n = int(rng.integers(3, 8))
+        pairs = np.array([(i, j) for i in range(n) for j in range(i + 1, n)])
+        edges = pairs[rng.random(len(pairs)) < 0.6].reshape(-1, 2)
+        weights = rng.uniform(0, 5, len(edges)) * np.where(rng.random(len(edges)) < 0.5, -1, 1)
+        num_labels = int(rng.integers(2, 5))
+        costs = rng.uniform(0, 10, num_labels)
+        costs[0] = 0.0
+        problem = Problem(rng.uniform(0, 10, (num_labels, n)), edges, weights, costs,
+                          outlier_row=0, outlier_apart=True)
+        labels = rng.integers(0, num_labels, n)
+        alpha = int(rng.integers(0, num_labels))
+        moved = expansion_move(problem, labels, alpha)
+        assert set(np.flatnonzero(moved != labels)) <= set(np.flatnonzero(moved == alpha))
+        assert energy(problem, moved) <= energy(problem, labels) + 1e-9
+        best = _brute_force(problem, labels, alpha)
+        assert energy(problem, moved) >= best - 1e-9
+        short += energy(problem, moved) > best + 1e-9
+    assert short < 10
+
+
+def test_with_only_alike_pairs_outliers_apart_changes_nothing():
+    # The option only touches pairs with a negative weight: with none, moves are exact Potts.
+    rng = np.random.default_rng(5)
+    for _ in range(20):
+        n = int(rng.integers(2, 7))
+        pairs = np.array([(i, j) for i in range(n) for j in range(i + 1, n)])
+        edges = pairs[rng.random(len(pairs)) < 0.6].reshape(-1, 2)
+        problem = Problem(rng.uniform(0, 10, (3, n)), edges, rng.uniform(0, 5, len(edges)),
+                          np.array([0.0, 4.0, 4.0]), outlier_row=0, outlier_apart=True)
+        labels = rng.integers(0, 3, n)
+        alpha = int(rng.integers(0, 3))
+        moved = expansion_move(problem, labels, alpha)
+        assert energy(problem, moved) == pytest.approx(_brute_force(problem, labels, alpha),
+                                                       abs=1e-9)
+
+
+def _scene_with_mismatches(affine_scene, share: float, seed: int
+                           ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Two views of two rigid motions; ``share`` of the points get a second-view position drawn
+    anywhere in the image (a mismatch). Returns tracks, truth (mismatches -1) and the mask."""
+    tracks, truth = affine_scene(sizes=(120, 90), noise=0.3, seed=seed)
+    tracks = tracks[[0, -1]].copy()
+    rng = np.random.default_rng(seed)
+    bad = rng.random(truth.size) < share
+    low, high = tracks.reshape(-1, 2).min(axis=0), tracks.reshape(-1, 2).max(axis=0)
+    tracks[1, bad] = rng.uniform(low, high, (int(bad.sum()), 2))
+    return tracks, np.where(bad, OUTLIER, truth), bad
+
+
+def test_isolated_points_pay_the_uniform_outlier_cost_and_leave_the_pair_unit(affine_scene):
+    tracks, _, bad = _scene_with_mismatches(affine_scene, 0.4, seed=3)
+    config = PearlConfig(model='fundamental', solver=SolverSettings(isolation=20.0))
+    setting = pearl._setting(tracks, config, np.random.default_rng(0))
+    plain = pearl._setting(tracks, PearlConfig(model='fundamental',
+                                               solver=SolverSettings(isolation=0.0)),
+                           np.random.default_rng(0))
+    # The uniform density over the larger side L of the points' bounding box, as twice its
+    # negative log-likelihood per residual dimension, from the model's noise floor.
+    side = np.ptp(tracks.reshape(-1, 2), axis=0).max()
+    uniform = setting.dof * (2 * math.log(side / setting.floor) - math.log(2 * math.pi))
+    isolated = setting.outlier_cost < plain.outlier_cost[0]
+    assert np.allclose(setting.outlier_cost[isolated], uniform)
+    # The others keep the threshold's cost (a residual of outlier_threshold noise scales, which
+    # does not depend on the scale itself).
+    assert np.allclose(setting.outlier_cost[~isolated], plain.outlier_cost[0])
+    # The mismatches leave the noise scale: least squares over neighbourhoods holding them reads
+    # it too high.
+    assert setting.scale < plain.scale
+    # Mismatches are found isolated, true matches seldom.
+    assert np.mean(isolated[bad]) > 0.7
+    assert np.mean(isolated[~bad]) < 0.1
+    # With the mismatches' edges out of the pair unit, the unit shrinks to the true matches'
+    # misses: most edges touching a mismatch now read as moving apart (a negative weight),
+    # where the unit inflated by the mismatches read them as alike.
+    touching = bad[setting.edges[:, 0]] | bad[setting.edges[:, 1]]
+    assert np.mean(setting.weights[touching] < 0) > 0.5
+    assert np.mean(setting.weights[touching] < 0) > np.mean(plain.weights[touching] < 0) + 0.2
+
+
+def test_isolation_and_outliers_apart_find_the_motions_among_40_percent_mismatches(
+        affine_scene):
+    tracks, truth, bad = _scene_with_mismatches(affine_scene, 0.4, seed=4)
+    solver = SolverSettings(isolation=20.0, outlier_apart=True)
+    found = pearl.fit(tracks, PearlConfig(model='fundamental', solver=solver), rng=0)
+    without = SolverSettings(isolation=0.0, outlier_apart=False)
+    default = pearl.fit(tracks, PearlConfig(model='fundamental', solver=without), rng=0)
+    # Scored with the mismatches as a group of their own, as AdelaideRMF is.
+    assert misclassification(found.labels, truth) < 0.1
+    assert misclassification(found.labels, truth) < misclassification(default.labels, truth)
+    assert np.mean(found.labels[bad] == OUTLIER) > 0.8
+
+
+def test_the_online_scale_given_the_graph_is_the_scale_fit_reads(affine_scene):
+    # The online segmenter estimates the scale with noise_scale and passes it on: given the
+    # same neighbourhood, it must leave out the same isolated points fit does.
+    tracks, _, _ = _scene_with_mismatches(affine_scene, 0.4, seed=5)
+    config = PearlConfig(model='fundamental')
+    graph = neighbourhood(tracks, settings=config.solver)
+    setting = pearl._setting(tracks, config, np.random.default_rng(0), graph)
+    assert pearl.noise_scale(tracks, config, 0, graph) == setting.scale
+    assert pearl.noise_scale(tracks, config, 0) > setting.scale
