@@ -128,8 +128,8 @@ class SolverSettings:
         True, 'an outlier earns the reward of every neighbour pair that moves apart, whatever '
         'its neighbour\'s label (each outlier its own motion)')
     isolation: float = spec(
-        20.0, 'a point whose most alike neighbour misses it by more than this many times the '
-        'lower quartile of such misses (and isolation_floor noise scales) is isolated: its '
+        40.0, 'a point whose most alike neighbour misses it by more than this many times the '
+        '10% quantile of such misses (and isolation_floor noise scales) is isolated: its '
         'outlier cost is that of a uniform density over the image, and it leaves the noise '
         'scale and the pair unit; 0 = off', low=0.0, high=1e6)
     isolation_floor: float = spec(

@@ -103,7 +103,7 @@ def _scene_with_mismatches(affine_scene, share: float, seed: int
 
 def test_isolated_points_pay_the_uniform_outlier_cost_and_leave_the_pair_unit(affine_scene):
     tracks, _, bad = _scene_with_mismatches(affine_scene, 0.4, seed=3)
-    config = PearlConfig(model='fundamental', solver=SolverSettings(isolation=20.0))
+    config = PearlConfig(model='fundamental', solver=SolverSettings())
     setting = pearl._setting(tracks, config, np.random.default_rng(0))
     plain = pearl._setting(tracks, PearlConfig(model='fundamental',
                                                solver=SolverSettings(isolation=0.0)),
@@ -134,7 +134,7 @@ def test_isolated_points_pay_the_uniform_outlier_cost_and_leave_the_pair_unit(af
 def test_isolation_and_outliers_apart_find_the_motions_among_40_percent_mismatches(
         affine_scene):
     tracks, truth, bad = _scene_with_mismatches(affine_scene, 0.4, seed=4)
-    solver = SolverSettings(isolation=20.0, outlier_apart=True)
+    solver = SolverSettings()
     found = pearl.fit(tracks, PearlConfig(model='fundamental', solver=solver), rng=0)
     without = SolverSettings(isolation=0.0, outlier_apart=False)
     default = pearl.fit(tracks, PearlConfig(model='fundamental', solver=without), rng=0)
@@ -153,3 +153,4 @@ def test_the_online_scale_given_the_graph_is_the_scale_fit_reads(affine_scene):
     setting = pearl._setting(tracks, config, np.random.default_rng(0), graph)
     assert pearl.noise_scale(tracks, config, 0, graph) == setting.scale
     assert pearl.noise_scale(tracks, config, 0) > setting.scale
+
