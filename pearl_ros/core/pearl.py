@@ -555,7 +555,8 @@ def _setting(tracks: np.ndarray, config: PearlConfig, rng: np.random.Generator,
     else:
         graph.check(n)
     edges, neighbours = graph.edges, graph.neighbours
-    suspect = _suspects(graph, solver.isolation)
+    nearest = graph.nearest_miss()
+    suspect = _suspects(nearest, solver.isolation)
     scale = config.noise or _estimate_scale(model, data, neighbours, config, rng, suspect,
                                             tracks[-1])
     dof = model.residual_dof(data)
@@ -568,7 +569,7 @@ def _setting(tracks: np.ndarray, config: PearlConfig, rng: np.random.Generator,
     costs = np.full(n, outlier_cost)
     counted = None
     if suspect is not None:
-        isolated = suspect & (graph.nearest_miss() > solver.isolation_floor * scale)
+        isolated = suspect & (nearest > solver.isolation_floor * scale)
         span = float(np.ptp(tracks.reshape(-1, 2), axis=0).max())
         uniform = dof * (2.0 * math.log(max(span, floor) / floor) - math.log(2.0 * math.pi))
         costs[isolated] = min(outlier_cost, max(uniform, 0.0))
@@ -603,18 +604,20 @@ def noise_scale(tracks: np.ndarray, config: PearlConfig | None = None,
     neighbours, suspect = nearest_neighbours(anchor, config.solver.image_neighbours), None
     if graph is not None:
         graph.check(data.shape[0])
-        suspect = _suspects(graph, config.solver.isolation)
+        suspect = _suspects(graph.nearest_miss(), config.solver.isolation)
     return _estimate_scale(model, data, neighbours, config, np.random.default_rng(rng),
                            suspect, anchor)
 
 
-def _suspects(graph: Neighbourhood, isolation: float) -> np.ndarray | None:
+def _suspects(nearest: np.ndarray, isolation: float) -> np.ndarray | None:
     """Points ``(N,)`` bool whose most alike neighbour misses them by more than ``isolation``
-    times the ``CORE_QUANTILE`` quantile of such misses (None when ``isolation`` is 0)."""
-    if not isolation or not graph.edges.size:
+    times the ``CORE_QUANTILE`` quantile of such misses, from each point's least miss
+    ``nearest`` (:meth:`Neighbourhood.nearest_miss`); None when ``isolation`` is 0 or no point
+    has a neighbour."""
+    finite = nearest[np.isfinite(nearest)]
+    if not isolation or not finite.size:
         return None
-    nearest = graph.nearest_miss()
-    core = float(np.quantile(nearest[np.isfinite(nearest)], CORE_QUANTILE))
+    core = float(np.quantile(finite, CORE_QUANTILE))
     suspect: np.ndarray = nearest > isolation * core
     return suspect
 

@@ -138,6 +138,17 @@ def test_a_softer_outlier_tie_that_stays_metric_keeps_moves_optimal(seed, tie):
                                                        abs=1e-9)
 
 
+def falls_short(problem: Problem, labels: np.ndarray, alpha: int) -> bool:
+    """Run one move with truncated pair terms: it must only switch points to ``alpha``, never
+    raise the energy and never beat brute force. Whether it fell short of the best move."""
+    moved = expansion_move(problem, labels, alpha)
+    assert set(np.flatnonzero(moved != labels)) <= set(np.flatnonzero(moved == alpha))
+    assert energy(problem, moved) <= energy(problem, labels) + 1e-9
+    best = best_move_energy(problem, labels, alpha)
+    assert energy(problem, moved) >= best - 1e-9
+    return bool(energy(problem, moved) > best + 1e-9)
+
+
 @pytest.mark.parametrize('seed', range(10))
 def test_a_free_outlier_tie_never_makes_a_move_worse(seed):
     # Below 1/2 the outlier label's expansions break pairs of two motions at a saving the cut
@@ -150,11 +161,7 @@ def test_a_free_outlier_tie_never_makes_a_move_worse(seed):
                                       outlier_row=0, outlier_tie=float(rng.uniform(0, 0.5)))
         labels = rng.integers(0, problem.unary.shape[0], n)
         alpha = int(rng.integers(0, problem.unary.shape[0]))
-        moved = expansion_move(problem, labels, alpha)
-        assert energy(problem, moved) <= energy(problem, labels) + 1e-9
-        best = best_move_energy(problem, labels, alpha)
-        assert energy(problem, moved) >= best - 1e-9
-        worse_than_best += energy(problem, moved) > best + 1e-9
+        worse_than_best += falls_short(problem, labels, alpha)
     # Expansions of a motion label stay exact: only some outlier expansions fall short.
     assert worse_than_best <= 5
 
@@ -167,3 +174,46 @@ def test_a_pair_cut_next_to_an_outlier_pays_its_share_of_the_weight():
     assert energy(problem, np.array([0, 1, 2])) == pytest.approx(0.25 * 4.0 + 6.0)
     assert energy(problem, np.array([1, 1, 0])) == pytest.approx(0.25 * 6.0)
     assert energy(problem, np.array([0, 0, 0])) == 0.0
+
+
+def apart_problem(rng: np.random.Generator, n: int, num_labels: int,
+                  rewards: bool) -> Problem:
+    """A random problem whose row 0 is a free outlier label with ``outlier_apart``; with
+    ``rewards``, about half of the weights are negative."""
+    base = random_problem(rng, n, num_labels)
+    weights = base.weights
+    if rewards:
+        weights = np.where(rng.random(weights.size) < 0.5, -weights, weights)
+    costs = base.label_costs.copy()
+    costs[0] = 0.0
+    return dataclasses.replace(base, weights=weights, label_costs=costs, outlier_row=0,
+                               outlier_apart=True)
+
+
+@pytest.mark.parametrize('seed', range(10))
+def test_with_outliers_apart_a_move_never_raises_the_energy_nor_beats_brute_force(seed):
+    # Two outliers that move apart earn a reward when both switch to the outlier label (E11 is
+    # not 0): the move must account for it. Truncated terms may leave it short of the best move,
+    # never below it and never above standing still.
+    rng = np.random.default_rng(300 + seed)
+    short = 0
+    for _ in range(10):
+        n = int(rng.integers(3, 8))
+        problem = apart_problem(rng, n, int(rng.integers(2, 5)), rewards=True)
+        labels = rng.integers(0, problem.unary.shape[0], n)
+        alpha = int(rng.integers(0, problem.unary.shape[0]))
+        short += falls_short(problem, labels, alpha)
+    assert short < 10
+
+
+def test_with_only_alike_pairs_outliers_apart_changes_nothing():
+    # The option only touches pairs with a negative weight: with none, moves are exact Potts.
+    rng = np.random.default_rng(5)
+    for _ in range(20):
+        n = int(rng.integers(2, 7))
+        problem = apart_problem(rng, n, 3, rewards=False)
+        labels = rng.integers(0, 3, n)
+        alpha = int(rng.integers(0, 3))
+        moved = expansion_move(problem, labels, alpha)
+        assert energy(problem, moved) == pytest.approx(best_move_energy(problem, labels, alpha),
+                                                       abs=1e-9)

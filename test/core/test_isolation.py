@@ -8,7 +8,6 @@ reward of every pair that moves apart, whatever its neighbour's label.
 from __future__ import annotations
 
 import dataclasses
-import itertools
 import math
 
 import numpy as np
@@ -17,7 +16,6 @@ import pytest
 from pearl_ros.core import pearl
 from pearl_ros.core.config import PearlConfig, SolverSettings
 from pearl_ros.core.energy import Problem, energy
-from pearl_ros.core.expansion import expansion_move
 from pearl_ros.core.labels import OUTLIER
 from pearl_ros.core.metrics import misclassification
 from pearl_ros.core.neighbourhood import neighbourhood
@@ -37,55 +35,6 @@ def test_an_outlier_earns_the_reward_of_a_pair_that_moves_apart_whatever_its_nei
     assert energy(apart, np.array([1, 1, 0])) == pytest.approx(6.0)
     assert energy(apart, np.array([0, 1, 1])) == pytest.approx(-4.0)
     assert energy(apart, np.array([2, 1, 1])) == pytest.approx(-4.0)
-
-
-def _brute_force(problem: Problem, labels: np.ndarray, alpha: int) -> float:
-    return min(energy(problem, np.where(np.array(switch, dtype=bool), alpha, labels))
-               for switch in itertools.product([False, True], repeat=labels.size))
-
-
-@pytest.mark.parametrize('seed', range(10))
-def test_with_outliers_apart_a_move_never_raises_the_energy_nor_beats_brute_force(seed):
-    # Two outliers that move apart earn a reward when both switch to the outlier label (E11 is
-    # not 0): the move must account for it. Truncated terms may leave it short of the best move,
-    # never below it and never above standing still.
-    rng = np.random.default_rng(300 + seed)
-    short = 0
-    for _ in range(10):
-        n = int(rng.integers(3, 8))
-        pairs = np.array([(i, j) for i in range(n) for j in range(i + 1, n)])
-        edges = pairs[rng.random(len(pairs)) < 0.6].reshape(-1, 2)
-        weights = rng.uniform(0, 5, len(edges)) * np.where(rng.random(len(edges)) < 0.5, -1, 1)
-        num_labels = int(rng.integers(2, 5))
-        costs = rng.uniform(0, 10, num_labels)
-        costs[0] = 0.0
-        problem = Problem(rng.uniform(0, 10, (num_labels, n)), edges, weights, costs,
-                          outlier_row=0, outlier_apart=True)
-        labels = rng.integers(0, num_labels, n)
-        alpha = int(rng.integers(0, num_labels))
-        moved = expansion_move(problem, labels, alpha)
-        assert set(np.flatnonzero(moved != labels)) <= set(np.flatnonzero(moved == alpha))
-        assert energy(problem, moved) <= energy(problem, labels) + 1e-9
-        best = _brute_force(problem, labels, alpha)
-        assert energy(problem, moved) >= best - 1e-9
-        short += energy(problem, moved) > best + 1e-9
-    assert short < 10
-
-
-def test_with_only_alike_pairs_outliers_apart_changes_nothing():
-    # The option only touches pairs with a negative weight: with none, moves are exact Potts.
-    rng = np.random.default_rng(5)
-    for _ in range(20):
-        n = int(rng.integers(2, 7))
-        pairs = np.array([(i, j) for i in range(n) for j in range(i + 1, n)])
-        edges = pairs[rng.random(len(pairs)) < 0.6].reshape(-1, 2)
-        problem = Problem(rng.uniform(0, 10, (3, n)), edges, rng.uniform(0, 5, len(edges)),
-                          np.array([0.0, 4.0, 4.0]), outlier_row=0, outlier_apart=True)
-        labels = rng.integers(0, 3, n)
-        alpha = int(rng.integers(0, 3))
-        moved = expansion_move(problem, labels, alpha)
-        assert energy(problem, moved) == pytest.approx(_brute_force(problem, labels, alpha),
-                                                       abs=1e-9)
 
 
 def _scene_with_mismatches(affine_scene, share: float, seed: int
