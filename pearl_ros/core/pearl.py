@@ -432,6 +432,34 @@ def _timed(timings: dict[str, float], step: str) -> Iterator[None]:
         timings[step] += time.perf_counter() - start
 
 
+def assign(tracks: np.ndarray, result: PearlResult, config: PearlConfig | None = None
+           ) -> np.ndarray:
+    """Labels of further points by the models of a :func:`fit`: 0..K-1, or -1 (outlier).
+
+    Each point of ``tracks`` (F, M, 2; the frames ``result`` was fitted over) goes to the model
+    of least data cost at that model's noise level, or to the outlier label where its cost is
+    less: the data term of the fit's energy alone, with no pair or label cost. ``config`` is
+    the fit's (its model, noise floor and outlier threshold); the noise scale is
+    ``result.scale``. Isolation is not judged here (it needs the points' neighbours), so every
+    point pays the outlier cost of a point that is not isolated.
+    """
+    config = config or PearlConfig()
+    model = get_model(config.model, config.solver)
+    data = model.data(tracks)  # validates tracks
+    out = np.full(data.shape[0], OUTLIER, dtype=np.int64)
+    if result.params.shape[0] == 0 or data.shape[0] == 0:
+        return out
+    dof = model.residual_dof(data)
+    floor = config.solver.sigma_floor * result.scale
+    costs = data_costs(model.residuals(data, result.params), result.sigmas, dof, floor)
+    outlier_cost = data_costs(np.array([[config.outlier_threshold * result.scale]]),
+                              np.array([result.scale]), dof, floor)[0, 0]
+    best = np.argmin(costs, axis=0)
+    inlier = costs[best, np.arange(data.shape[0])] < outlier_cost
+    out[inlier] = best[inlier]
+    return out
+
+
 def evaluate_segmentation(
     tracks: np.ndarray,
     labels: np.ndarray,

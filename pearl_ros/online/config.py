@@ -55,6 +55,10 @@ class OnlineConfig:
     budget_ms: float = spec(
         20.0, 'ms, per-frame time budget of the optimiser; 0 = none. When it bites, labels '
         'depend on the machine', low=0.0, high=1e6)
+    max_fitted: int = spec(
+        0, 'most features the optimiser segments per frame; the others whose tracks span '
+        "the fitted frames go to the model of least data cost (0 = no limit)",
+        low=0, high=10**9)
     min_coverage: float = spec(
         0.5, "share of a frame's features that must span the frames the models are fitted over",
         low=0.0, high=1.0)

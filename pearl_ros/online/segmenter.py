@@ -6,7 +6,10 @@ frame's segmentation of the same tracks (its models refitted to the current wind
 small batch of fresh proposals: the thesis' "mix the optimal models with a new batch of samples"
 (Isack, sec. 2.3.3), spread over frames. Tracks too young for the fit go to the motion whose
 subspace over their own frames is nearest (affine models, 2 frames or more); a feature seen in
-one frame only takes the label of most of its labelled image neighbours.
+one frame only takes the label of most of its labelled image neighbours. With
+``OnlineConfig.max_fitted`` set, the fit sees at most that many tracks (chosen by a hash of their
+keys) and the other spanning tracks go to its models by their data cost alone
+(:func:`pearl_ros.core.pearl.assign`).
 
 Label identity: motions carry numbers that persist. After each fit, its segments are matched
 one-to-one to the numbers their tracks had in the previous frame (the assignment that agrees on
@@ -30,7 +33,7 @@ from pearl_ros.core.errors import InputError
 from pearl_ros.core.labels import OUTLIER, num_motions
 from pearl_ros.core.models import get_model
 from pearl_ros.core.neighbourhood import Neighbourhood, neighbourhood
-from pearl_ros.core.pearl import fit, noise_scale
+from pearl_ros.core.pearl import PearlResult, assign, fit, noise_scale
 from pearl_ros.online.config import OnlineConfig
 from pearl_ros.online.window import SlidingWindow, lookup
 
@@ -165,8 +168,16 @@ class OnlineSegmenter:
             if model_name in _TWO_VIEW:
                 tracks = tracks[[0, -1]]
             prior = lookup(self._labelled_keys, self._labelled_motions, keys[fitted], OUTLIER)
-            warm = self.online.warm_start and bool(np.any(prior != OUTLIER))
-            segments = self._fit(tracks, keys[fitted], model_name, prior, warm, start)
+            chosen = _chosen(keys[fitted], self.online.max_fitted)
+            warm = self.online.warm_start and bool(np.any(prior[chosen] != OUTLIER))
+            result, config = self._fit(tracks[:, chosen], keys[fitted][chosen], model_name,
+                                       prior[chosen], warm, start)
+            segments = np.empty(fitted.size, dtype=np.int64)
+            segments[chosen] = result.labels
+            rest = np.ones(fitted.size, dtype=bool)
+            rest[chosen] = False
+            if np.any(rest):
+                segments[rest] = assign(tracks[:, rest], result, config)
             motion_labels[fitted] = self._identify(segments, prior)
             young = np.setdiff1d(np.arange(keys.size), fitted)
             solver = self.config.solver
@@ -193,8 +204,9 @@ class OnlineSegmenter:
         return self.online.two_view_model if span == 2 else self.config.model
 
     def _fit(self, tracks: np.ndarray, keys: np.ndarray, model_name: str, prior: np.ndarray,
-             warm: bool, start: float) -> np.ndarray:
-        """Segment ``tracks`` (of the tracks ``keys``); returns 0..K-1 per track, -1 outliers."""
+             warm: bool, start: float) -> tuple[PearlResult, PearlConfig]:
+        """Segment ``tracks`` (of the tracks ``keys``); returns the fit (labels 0..K-1 per
+        track, -1 outliers) and the configuration it ran with."""
         # Fresh proposals on a cold fit and on every propose_every-th warm one; the warm frames
         # between only relabel and refit the motions already there, unless the energy per
         # feature rose since the last proposals (a motion starting, say): then the next frame
@@ -233,7 +245,7 @@ class OnlineSegmenter:
             self._quiet = self.online.propose_every
         else:
             self._quiet += 1
-        return result.labels
+        return result, config
 
     def _config(self, model_name: str, noise: float, kind: str) -> PearlConfig:
         """The fit's configuration: ``self.config`` with ``model_name`` and ``noise``, and for a
@@ -315,6 +327,18 @@ def _check_frame(stamp_ns: int, ids: np.ndarray, uv: np.ndarray
     if np.any(counts > 1):
         raise InputError(f'duplicate ids in one frame: {unique[counts > 1][:5].tolist()}')
     return stamp, ids, uv
+
+
+def _chosen(keys: np.ndarray, most: int) -> np.ndarray:
+    """Indices (sorted) of the tracks ``keys`` the optimiser segments: all of them, or the
+    ``most`` whose keys hash lowest (``most`` > 0). A hash rather than the image keeps the
+    chosen tracks spread over the image as all tracks are, and a track once chosen stays chosen
+    while fewer tracks hash lower: the warm start finds the same tracks frame after frame."""
+    if most == 0 or keys.size <= most:
+        return np.arange(keys.size)
+    # Fibonacci hashing: the key times 2^64 / golden ratio, modulo 2^64.
+    hashed = keys.astype(np.uint64) * np.uint64(0x9E3779B97F4A7C15)
+    return np.sort(np.argsort(hashed, kind='stable')[:most])
 
 
 def _span(age: np.ndarray, coverage: float) -> int:

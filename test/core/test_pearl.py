@@ -102,6 +102,35 @@ def test_gross_outliers_get_the_outlier_label_minus_one(affine_scene):
     assert misclassification(result.labels[good], truth[good]) < 0.02
 
 
+def test_assign_gives_held_out_points_their_true_motion_and_gross_outliers_minus_one(
+        affine_scene):
+    # The scene's truth is the oracle: a fit on every other point, the rest assigned by its
+    # models alone; points moved by tens of pixels per frame fit no model.
+    tracks, truth = affine_scene(sizes=(120, 90), noise=0.5, seed=8)
+    rng = np.random.default_rng(1)
+    bad = rng.choice(tracks.shape[1], 10, replace=False)
+    tracks[:, bad] += rng.uniform(-80, 80, (tracks.shape[0], bad.size, 2))
+    held = np.zeros(truth.size, dtype=bool)
+    held[1::2] = True
+    result = fit(tracks[:, ~held], rng=0)
+    labels = pearl.assign(tracks[:, held], result)
+    good = ~np.isin(np.flatnonzero(held), bad)
+    assert np.all(labels[~good] == OUTLIER)
+    assert misclassification(labels[good], truth[held][good]) < 0.02
+    assert np.mean(labels[good] == OUTLIER) < 0.02
+    # Points the fit saw get the model whose data cost is least, as the fit's own labels do
+    # wherever the pair term does not decide (it rarely does on this clear scene).
+    own = pearl.assign(tracks[:, ~held], result)
+    assert np.mean(own == result.labels) > 0.97
+
+
+def test_assign_without_models_labels_every_point_an_outlier(affine_scene):
+    tracks, _ = affine_scene(sizes=(60,), noise=0.5, seed=2)
+    empty = pearl.PearlResult(np.full(60, OUTLIER), np.empty((0, 2 * tracks.shape[0], 4)),
+                              np.empty(0), 0.0, (), 0, scale=0.5)
+    assert np.all(pearl.assign(tracks, empty) == OUTLIER)
+
+
 @pytest.mark.parametrize('model', ['fundamental', 'homography'])
 def test_two_view_models_run_through_the_same_optimiser(affine_scene, model):
     tracks, truth = affine_scene(sizes=(120, 90), noise=0.3, seed=6)

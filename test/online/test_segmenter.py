@@ -306,3 +306,33 @@ def test_a_budgeted_cold_start_draws_one_warm_slice_of_proposals(monkeypatch):
         assert drawn[0] == first
         assert all(n == UNTIMED.warm_proposals and r == UNTIMED.warm_rounds
                    for n, r, _ in drawn[1:])
+
+
+def test_chosen_tracks_stay_chosen_as_tracks_that_hash_higher_come_and_go():
+    from pearl_ros.online.segmenter import _chosen
+    keys = np.arange(100, 400, dtype=np.int64)
+    first = set(keys[_chosen(keys, 50)].tolist())
+    assert len(first) == 50 and _chosen(keys, 0).size == keys.size
+    # New tracks arrive (keys 400-499) and old ones not chosen die: a chosen track is dropped
+    # only for a newcomer that hashes lower, never for another old one.
+    later_keys = np.concatenate([keys[np.isin(keys, list(first)) | (keys % 3 == 0)],
+                                 np.arange(400, 500)])
+    later = set(later_keys[_chosen(later_keys, 50)].tolist())
+    kept = first & later
+    newcomers = later - set(keys.tolist())
+    assert len(kept) + len(newcomers) == 50
+    assert not (later - kept - newcomers)
+
+
+def test_with_a_cap_every_spanning_feature_is_labelled_by_the_fit_s_models():
+    # 240 features, the optimiser sees 100: the others go to the models by their data cost
+    # and come out as right as those the optimiser labelled (ground truth as the oracle).
+    frames = list(synthetic_stream(240, 25, (BodySpec(0.4),), seed=9))
+    capped = dataclasses.replace(UNTIMED, max_fitted=100)
+    _, results = run(frames, OnlineSegmenter(online=capped))
+    for t in range(2 * WINDOW, len(frames)):
+        assert results[t].motions == 2
+        assert misclassification(results[t].labels, frames[t].truth) < 0.1
+        assert np.mean(results[t].labels == OUTLIER) < 0.05
+    _, again = run(frames, OnlineSegmenter(online=capped))
+    assert all(x.labels.tolist() == y.labels.tolist() for x, y in zip(results, again, strict=True))
