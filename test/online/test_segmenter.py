@@ -284,9 +284,9 @@ def test_a_budget_smaller_than_any_frame_still_converges_one_slice_a_frame():
         assert misclassification(results[-1].labels, frames[-1].truth) < 0.02
 
 
-def test_a_budgeted_cold_start_draws_one_warm_slice_of_proposals(monkeypatch):
+def test_a_budgeted_cold_start_draws_one_round_of_proposals(monkeypatch):
     # Unbudgeted, the cold fit draws num_proposals in each of its rounds; budgeted, one round
-    # of a warm frame's slice, and the frames after it propose at the warm cadence.
+    # of them, and the frames after it propose at the warm cadence.
     from pearl_ros.online import segmenter as module
 
     drawn = []
@@ -300,7 +300,7 @@ def test_a_budgeted_cold_start_draws_one_warm_slice_of_proposals(monkeypatch):
     frames = list(synthetic_stream(150, 12, (BodySpec(0.3),), seed=2))
     cold = PearlConfig()
     for budget, first in ((0.0, (cold.num_proposals, cold.rounds, True)),
-                          (1e-6, (UNTIMED.warm_proposals, 1, True))):
+                          (1e-6, (cold.num_proposals, 1, True))):
         drawn.clear()
         run(frames, OnlineSegmenter(online=dataclasses.replace(UNTIMED, budget_ms=budget)))
         assert drawn[0] == first
