@@ -452,8 +452,7 @@ def assign(tracks: np.ndarray, result: PearlResult, config: PearlConfig | None =
     dof = model.residual_dof(data)
     floor = config.solver.sigma_floor * result.scale
     costs = data_costs(model.residuals(data, result.params), result.sigmas, dof, floor)
-    outlier_cost = data_costs(np.array([[config.outlier_threshold * result.scale]]),
-                              np.array([result.scale]), dof, floor)[0, 0]
+    outlier_cost = _outlier_cost(config.outlier_threshold, result.scale, dof, floor)
     best = np.argmin(costs, axis=0)
     inlier = costs[best, np.arange(data.shape[0])] < outlier_cost
     out[inlier] = best[inlier]
@@ -568,6 +567,12 @@ def _past(deadline: float | None) -> bool:
     return deadline is not None and time.perf_counter() > deadline
 
 
+def _outlier_cost(threshold: float, scale: float, dof: float, floor: float) -> float:
+    """The outlier label's data cost: a point is an outlier when its residual to a model at the
+    fresh noise level ``scale`` exceeds ``threshold`` of those levels."""
+    return float(data_costs(np.array([[threshold * scale]]), np.array([scale]), dof, floor)[0, 0])
+
+
 def _setting(tracks: np.ndarray, config: PearlConfig, rng: np.random.Generator,
              graph: Neighbourhood | None = None) -> _Setting:
     solver = config.solver
@@ -590,10 +595,7 @@ def _setting(tracks: np.ndarray, config: PearlConfig, rng: np.random.Generator,
     dof = model.residual_dof(data)
     floor = solver.sigma_floor * scale
     ceiling = solver.sigma_ceiling * scale if solver.sigma_ceiling else math.inf
-    # A point is an outlier when its residual to a model at the fresh noise level exceeds
-    # outlier_threshold of those levels.
-    outlier_cost = float(data_costs(np.array([[config.outlier_threshold * scale]]),
-                                    np.array([scale]), dof, floor)[0, 0])
+    outlier_cost = _outlier_cost(config.outlier_threshold, scale, dof, floor)
     costs = np.full(n, outlier_cost)
     counted = None
     if suspect is not None:

@@ -167,16 +167,21 @@ class OnlineSegmenter:
             tracks = coords[-span:, fitted]
             if model_name in _TWO_VIEW:
                 tracks = tracks[[0, -1]]
-            prior = lookup(self._labelled_keys, self._labelled_motions, keys[fitted], OUTLIER)
-            chosen = _chosen(keys[fitted], self.online.max_fitted)
-            warm = self.online.warm_start and bool(np.any(prior[chosen] != OUTLIER))
-            result, config = self._fit(tracks[:, chosen], keys[fitted][chosen], model_name,
-                                       prior[chosen], warm, start)
-            segments = np.empty(fitted.size, dtype=np.int64)
-            segments[chosen] = result.labels
-            rest = np.ones(fitted.size, dtype=bool)
-            rest[chosen] = False
-            if np.any(rest):
+            fitted_keys = keys[fitted]
+            prior = lookup(self._labelled_keys, self._labelled_motions, fitted_keys, OUTLIER)
+            chosen = _chosen(fitted_keys, self.online.max_fitted)
+            if chosen is None:
+                warm = self.online.warm_start and bool(np.any(prior != OUTLIER))
+                result, _ = self._fit(tracks, fitted_keys, model_name, prior, warm, start)
+                segments = result.labels
+            else:
+                warm = self.online.warm_start and bool(np.any(prior[chosen] != OUTLIER))
+                result, config = self._fit(tracks[:, chosen], fitted_keys[chosen], model_name,
+                                           prior[chosen], warm, start)
+                rest = np.ones(fitted.size, dtype=bool)
+                rest[chosen] = False
+                segments = np.empty(fitted.size, dtype=np.int64)
+                segments[chosen] = result.labels
                 segments[rest] = assign(tracks[:, rest], result, config)
             motion_labels[fitted] = self._identify(segments, prior)
             young = np.setdiff1d(np.arange(keys.size), fitted)
@@ -329,13 +334,13 @@ def _check_frame(stamp_ns: int, ids: np.ndarray, uv: np.ndarray
     return stamp, ids, uv
 
 
-def _chosen(keys: np.ndarray, most: int) -> np.ndarray:
-    """Indices (sorted) of the tracks ``keys`` the optimiser segments: all of them, or the
-    ``most`` whose keys hash lowest (``most`` > 0). A hash rather than the image keeps the
+def _chosen(keys: np.ndarray, most: int) -> np.ndarray | None:
+    """Indices (sorted) of the tracks ``keys`` the optimiser segments: None for all of them, or
+    the ``most`` whose keys hash lowest (``most`` > 0). A hash rather than the image keeps the
     chosen tracks spread over the image as all tracks are, and a track once chosen stays chosen
     while fewer tracks hash lower: the warm start finds the same tracks frame after frame."""
     if most == 0 or keys.size <= most:
-        return np.arange(keys.size)
+        return None
     # Fibonacci hashing: the key times 2^64 / golden ratio, modulo 2^64.
     hashed = keys.astype(np.uint64) * np.uint64(0x9E3779B97F4A7C15)
     return np.sort(np.argsort(hashed, kind='stable')[:most])

@@ -312,7 +312,7 @@ def test_chosen_tracks_stay_chosen_as_tracks_that_hash_higher_come_and_go():
     from pearl_ros.online.segmenter import _chosen
     keys = np.arange(100, 400, dtype=np.int64)
     first = set(keys[_chosen(keys, 50)].tolist())
-    assert len(first) == 50 and _chosen(keys, 0).size == keys.size
+    assert len(first) == 50 and _chosen(keys, 0) is None and _chosen(keys, 300) is None
     # New tracks arrive (keys 400-499) and old ones not chosen die: a chosen track is dropped
     # only for a newcomer that hashes lower, never for another old one.
     later_keys = np.concatenate([keys[np.isin(keys, list(first)) | (keys % 3 == 0)],
