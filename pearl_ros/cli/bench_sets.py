@@ -60,6 +60,10 @@ def add_commands(commands: Any) -> None:
         'the final frame, outlier tracks as a group of their own.')
     syn.add_argument('--scenes', type=int, nargs='+', default=list(SUITE_ROBOT_SEEDS),
                      metavar='SEED', help='scene seeds (default 0 1 2)')
+    syn.add_argument('--oracle', action='store_true',
+                     help='also read each final window with the true camera poses: which '
+                     'points a static point explains, and how far each group lies from the '
+                     "static world's 3-D and 4-D affine subspaces")
     common(syn)
     suite = commands.add_parser(
         'suite', help='every data set in one table',
@@ -150,6 +154,10 @@ def synthetic(args: argparse.Namespace) -> int:
     _report(_run(run_task, tasks, args.jobs),
             _title('Online PEaRL on robot-like synthetic streams', overrides, online),
             args.items)
+    if args.oracle:
+        from pearl_ros.evaluation.robot_oracle import final_window, format_readings
+
+        print(format_readings([r for s in args.scenes for r in final_window(s, online.window)]))
     return 0
 
 
