@@ -125,6 +125,10 @@ def sweep(problem: Problem, labels: np.ndarray, settings: SolverSettings | None 
     current = energy(problem, labels)
     in_use = np.zeros(unary.shape[0], dtype=bool)
     in_use[labels] = True
+    # Labels whose expansion failed on the labelling as it is now: the same move on the same
+    # labelling fails again, so a later pass counts it as failed without running it (the
+    # labels come out exactly as if it ran). Any accepted move makes every label worth a try.
+    stale = np.zeros(unary.shape[0], dtype=bool)
     for sweep_pass in range(settings.max_passes):
         changed = False
         tried = np.zeros(unary.shape[0], dtype=bool)
@@ -143,13 +147,19 @@ def sweep(problem: Problem, labels: np.ndarray, settings: SolverSettings | None 
                     and np.any(labels != problem.outlier_row)):
                 return labels
             tried[alpha] = True
+            if stale[alpha]:
+                failed += int(not used[alpha])
+                continue
             moved = expansion_move(problem, labels, alpha)
             moved_energy = energy(problem, moved)
             if moved_energy < current - 1e-9:
                 labels, current, changed, gain = moved, moved_energy, True, None
                 failed = 0
-            elif not used[alpha]:
-                failed += 1
+                stale[:] = False
+            else:
+                stale[alpha] = True
+                if not used[alpha]:
+                    failed += 1
         if not changed:
             break
     return labels

@@ -217,3 +217,43 @@ def test_with_only_alike_pairs_outliers_apart_changes_nothing():
         moved = expansion_move(problem, labels, alpha)
         assert energy(problem, moved) == pytest.approx(best_move_energy(problem, labels, alpha),
                                                        abs=1e-9)
+
+
+@pytest.mark.parametrize('seed', range(10))
+def test_a_sweep_ends_where_no_expansion_of_a_label_in_use_lowers_the_energy(seed):
+    # (An unused label is screened by a bound on its gain that leaves out the label costs its
+    # move could free, so it may be left untried where its move would pay.)
+    from pearl_ros.core.config import SolverSettings
+    from pearl_ros.core.pearl import sweep
+
+    rng = np.random.default_rng(seed)
+    patient = SolverSettings(max_passes=1000, max_failed=10**6)
+    for _ in range(5):
+        n = int(rng.integers(3, 9))
+        problem = random_problem(rng, n, int(rng.integers(2, 6)))
+        start = rng.integers(0, problem.unary.shape[0], n)
+        labels = sweep(problem, start, patient)
+        assert energy(problem, labels) <= energy(problem, start) + 1e-9
+        for alpha in np.unique(labels):
+            assert best_move_energy(problem, labels, alpha) >= energy(problem, labels) - 1e-9
+
+
+@pytest.mark.parametrize('seed', range(10))
+def test_a_sweep_never_runs_one_move_twice_on_the_same_labelling(seed, monkeypatch):
+    # A failed expansion fails again on the same labelling: a later pass must not rerun it.
+    from pearl_ros.core import pearl
+
+    runs: list[tuple[bytes, int]] = []
+
+    def counted(problem, labels, alpha):
+        runs.append((np.asarray(labels).tobytes(), alpha))
+        return expansion_move(problem, labels, alpha)
+
+    monkeypatch.setattr(pearl, 'expansion_move', counted)
+    rng = np.random.default_rng(seed)
+    for _ in range(5):
+        n = int(rng.integers(3, 9))
+        problem = random_problem(rng, n, int(rng.integers(2, 6)))
+        runs.clear()
+        pearl.sweep(problem, rng.integers(0, problem.unary.shape[0], n))
+        assert len(runs) == len(set(runs)) and runs
