@@ -68,3 +68,15 @@ def test_the_static_world_is_explained_and_outlier_tracks_are_not() -> None:
     # Perspective: the static world fits a 4-D affine subspace closer than a 3-D one.
     assert by_group[0].affine4_px < by_group[0].affine3_px
     assert 'static point would' in format_readings(readings)
+
+
+def test_pearl_bench_synthetic_oracle_prints_the_readings(capsys: pytest.CaptureFixture[str]
+                                                          ) -> None:
+    from pearl_ros.cli.bench import main
+
+    assert main(['synthetic', '--scenes', '1', '--oracle']) == 0
+    out = capsys.readouterr().out
+    rows = [line.split('|') for line in out.splitlines() if line.startswith('| 1 |')]
+    static = next(r for r in rows if r[2].strip() == 'static world')
+    assert float(static[5]) >= 0.95  # the static world is explained by static points
+    assert 'seed 1: ' in out and 'robot_synthetic' in out
