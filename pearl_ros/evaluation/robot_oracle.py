@@ -8,7 +8,7 @@ line of sight, say): no segmentation from image motion alone can tell it from th
 whatever its energy. And the motion model matters: under perspective, the static world's
 trajectories over a window fill a 4-D affine subspace, which a 3-D one (the affine camera's)
 fits only at two to three times the noise. Objects lie 1-5 px off the 3-D subspace and
-under a pixel off the 4-D one (on the streams of `pearl_bench synthetic`).
+about a pixel or less off the 4-D one (on the streams of `pearl_bench synthetic`).
 
 ``pearl_bench synthetic --oracle`` prints these readings beside the segmenter's scores.
 """
