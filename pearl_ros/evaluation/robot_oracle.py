@@ -21,6 +21,7 @@ import numpy as np
 
 from pearl_ros.core.errors import InputError
 from pearl_ros.datasets.robot import INTRINSICS, robot_scene, robot_stream
+from pearl_ros.online.window import SlidingWindow
 
 
 @dataclass(frozen=True)
@@ -90,23 +91,20 @@ def final_window(seed: int, window: int = 10, frames: int = 300, static_px: floa
     if not 2 <= window <= frames:
         raise InputError(f'window must be in [2, frames], got {window}')
     scene = robot_scene(frames, seed)
-    last = list(robot_stream(seed=seed, frames=frames))[-window:]
-    ids = last[0].ids
-    for frame in last[1:]:
-        ids = np.intersect1d(ids, frame.ids)
-    at = []
-    for frame in last:
-        order = np.argsort(frame.ids, kind='stable')
-        at.append(order[np.searchsorted(frame.ids[order], ids)])
-    uv = np.stack([frame.uv[i] for frame, i in zip(last, at, strict=True)])
-    truth = last[-1].truth[at[-1]]
+    # The tracks as the node keys them (a tracker's reused id is a new track).
+    tracked = SlidingWindow(window)
+    for frame in list(robot_stream(seed=seed, frames=frames))[-window:]:
+        keys = tracked.push(frame.stamp_ns, frame.ids, frame.uv)
+    coords, age = tracked.history(keys)
+    spanning = age == window
+    uv, truth = coords[:, spanning], frame.truth[spanning]
     span = range(frames - window, frames)
     cameras = np.stack([INTRINSICS @ np.hstack([scene.camera_rotation[t].T,
                                                 -scene.camera_rotation[t].T
                                                 @ scene.camera_position[t][:, None]])
                         for t in span])
     residual, in_front = triangulate(cameras, uv)
-    trajectories = np.transpose(uv, (1, 0, 2)).reshape(ids.size, -1)
+    trajectories = np.transpose(uv, (1, 0, 2)).reshape(uv.shape[1], -1)
     static = trajectories[truth == 0]
     readings = []
     for group in np.unique(truth):

@@ -170,14 +170,13 @@ class OnlineSegmenter:
             fitted_keys = keys[fitted]
             prior = lookup(self._labelled_keys, self._labelled_motions, fitted_keys, OUTLIER)
             chosen = _chosen(fitted_keys, self.online.max_fitted)
-            if chosen is None:
-                warm = self.online.warm_start and bool(np.any(prior != OUTLIER))
-                result, _ = self._fit(tracks, fitted_keys, model_name, prior, warm, start)
-                segments = result.labels
-            else:
-                warm = self.online.warm_start and bool(np.any(prior[chosen] != OUTLIER))
-                result, config = self._fit(tracks[:, chosen], fitted_keys[chosen], model_name,
-                                           prior[chosen], warm, start)
+            # Every spanning track, as a view (no copy), unless max_fitted chose some.
+            pick = slice(None) if chosen is None else chosen
+            warm = self.online.warm_start and bool(np.any(prior[pick] != OUTLIER))
+            result, config = self._fit(tracks[:, pick], fitted_keys[pick], model_name,
+                                       prior[pick], warm, start)
+            segments = result.labels
+            if chosen is not None:
                 rest = np.ones(fitted.size, dtype=bool)
                 rest[chosen] = False
                 segments = np.empty(fitted.size, dtype=np.int64)
