@@ -41,6 +41,9 @@ class Score:
     seconds : float, wall time of the fit (for streams: mean per frame)
     outlier_recall_pct : float, percent of true outliers labelled -1 (NaN without outliers)
     rejected_pct : float, percent of true motion points labelled -1
+    half_pct : float, for a stream, the mean misclassification over the second half of its
+        frames in percent (the final frame alone swings with one frame's split or merge); NaN
+        for a batch or two-frame item
     """
 
     dataset: str
@@ -52,6 +55,7 @@ class Score:
     seconds: float
     outlier_recall_pct: float = math.nan
     rejected_pct: float = math.nan
+    half_pct: float = math.nan
 
 
 @dataclass(frozen=True)
@@ -68,12 +72,13 @@ class Task:
 
 
 def score(dataset: str, name: str, pred: np.ndarray, truth: np.ndarray, seconds: float,
-          motions_found: int, outliers_apart: bool = False) -> Score:
+          motions_found: int, outliers_apart: bool = False, half_pct: float = math.nan
+          ) -> Score:
     """A :class:`Score` of ``pred`` against ``truth`` (``-1`` = outlier in both).
 
     With ``outliers_apart`` the error counts the true motion points only (a true point
     labelled -1 is wrong) and the outliers are judged by recall alone, as when outlier tracks
-    were added to a clean set.
+    were added to a clean set. ``half_pct`` is passed on (:attr:`Score.half_pct`).
     """
     pred, truth = np.asarray(pred), np.asarray(truth)
     true = truth != OUTLIER
@@ -84,7 +89,7 @@ def score(dataset: str, name: str, pred: np.ndarray, truth: np.ndarray, seconds:
     recall = 100.0 * float(np.mean(pred[~true] == OUTLIER)) if np.any(~true) else math.nan
     rejected = 100.0 * float(np.mean(pred[true] == OUTLIER)) if np.any(true) else math.nan
     return Score(dataset, name, 100.0 * error, num_motions(truth),
-                 int(motions_found), int(truth.size), seconds, recall, rejected)
+                 int(motions_found), int(truth.size), seconds, recall, rejected, half_pct)
 
 
 def run_task(task: Task) -> Score:
@@ -105,17 +110,22 @@ def _fit(tracks: np.ndarray, config: PearlConfig, seed: int) -> tuple[np.ndarray
 
 
 def _stream(frames: list[tuple[np.ndarray, np.ndarray, np.ndarray]], config: PearlConfig,
-            online: OnlineConfig) -> tuple[np.ndarray, np.ndarray, int, float]:
+            online: OnlineConfig) -> tuple[np.ndarray, np.ndarray, int, float, float]:
     """Feed (ids, uv, truth) frames to an online segmenter: the final frame's labels and truth,
-    its motion count, and the mean seconds per frame."""
+    its motion count, the mean seconds per frame, and the mean misclassification (percent) over
+    the second half of the frames (outliers a group of their own, as in :func:`score`)."""
     from pearl_ros.online.segmenter import OnlineSegmenter
 
     segmenter = OnlineSegmenter(config, online)
-    start = time.perf_counter()
-    for t, (ids, uv, _) in enumerate(frames):
+    seconds, half = 0.0, []
+    for t, (ids, uv, truth) in enumerate(frames):
+        start = time.perf_counter()
         result = segmenter.process(1_000_000_000 + t * FRAME_NS, ids, uv)
-    seconds = (time.perf_counter() - start) / max(len(frames), 1)
-    return result.labels, frames[-1][2], result.motions, seconds
+        seconds += time.perf_counter() - start
+        if t >= len(frames) // 2:
+            half.append(misclassification(result.labels, truth))
+    return (result.labels, frames[-1][2], result.motions, seconds / max(len(frames), 1),
+            100.0 * float(np.mean(half)))
 
 
 def _adelaide(task: Task) -> Score:
@@ -141,8 +151,8 @@ def _kt3dmoseg(task: Task) -> Score:
     dataset = f'kt3dmoseg_{task.mode}'
     if task.mode == 'stream':
         online = dataclasses.replace(task.online, seed=task.seed)
-        labels, truth, found, seconds = _stream(list(clip.frames()), task.config, online)
-        return score(dataset, clip.name, labels, truth, seconds, found)
+        labels, truth, found, seconds, half = _stream(list(clip.frames()), task.config, online)
+        return score(dataset, clip.name, labels, truth, seconds, found, half_pct=half)
     if task.mode == 'two':
         tracks, truth = clip.two_frames()
         config = dataclasses.replace(task.config, model='fundamental')
@@ -177,8 +187,8 @@ def _robot(task: Task) -> Score:
     seed = int(task.source)
     frames = [(f.ids, f.uv, f.truth) for f in robot_stream(seed=seed)]
     online = dataclasses.replace(task.online, seed=task.seed)
-    labels, truth, found, seconds = _stream(frames, task.config, online)
-    return score('robot_synthetic', f'seed{seed}', labels, truth, seconds, found)
+    labels, truth, found, seconds, half = _stream(frames, task.config, online)
+    return score('robot_synthetic', f'seed{seed}', labels, truth, seconds, found, half_pct=half)
 
 
 _RUNNERS = {
@@ -202,6 +212,7 @@ class Summary:
     outlier_recall_pct: float
     rejected_pct: float
     seconds: float  # median per item (per frame for streams)
+    half_pct: float = math.nan  # mean of the streams' Score.half_pct (NaN for other sets)
 
 
 def summarise(scores: list[Score]) -> list[Summary]:
@@ -212,24 +223,27 @@ def summarise(scores: list[Score]) -> list[Summary]:
         errors = np.array([s.error_pct for s in mine])
         recall = [s.outlier_recall_pct for s in mine if not math.isnan(s.outlier_recall_pct)]
         rejected = [s.rejected_pct for s in mine if not math.isnan(s.rejected_pct)]
+        half = [s.half_pct for s in mine if not math.isnan(s.half_pct)]
         out.append(Summary(
             dataset, len(mine), float(errors.mean()), float(np.median(errors)),
             100.0 * float(np.mean([s.motions_found == s.motions_true for s in mine])),
             float(np.mean(recall)) if recall else math.nan,
             float(np.mean(rejected)) if rejected else math.nan,
-            float(np.median([s.seconds for s in mine]))))
+            float(np.median([s.seconds for s in mine])),
+            float(np.mean(half)) if half else math.nan))
     return out
 
 
 def format_summaries(summaries: list[Summary]) -> str:
-    """The suite table: one line per data set."""
+    """The suite table: one line per data set. ``2nd half %``: for streams, the mean over
+    their items of the misclassification averaged over the second half of the frames."""
     head = (f'{"set":<22}{"items":>6}{"mean %":>9}{"median %":>10}{"motions ok %":>14}'
-            f'{"outl. -1 %":>12}{"true -1 %":>11}{"s/item":>9}')
+            f'{"outl. -1 %":>12}{"true -1 %":>11}{"s/item":>9}{"2nd half %":>12}')
     lines = [head]
     for s in summaries:
         def num(value: float, spec: str = '.2f') -> str:
             return '-' if math.isnan(value) else format(value, spec)
         lines.append(f'{s.dataset:<22}{s.items:>6}{s.mean_pct:>9.2f}{s.median_pct:>10.2f}'
                      f'{s.motions_right_pct:>14.1f}{num(s.outlier_recall_pct, ".1f"):>12}'
-                     f'{num(s.rejected_pct):>11}{s.seconds:>9.3f}')
+                     f'{num(s.rejected_pct):>11}{s.seconds:>9.3f}{num(s.half_pct):>12}')
     return '\n'.join(lines)

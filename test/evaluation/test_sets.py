@@ -13,7 +13,7 @@ import scipy.io
 from pearl_ros.cli.bench import main
 from pearl_ros.core.config import PearlConfig
 from pearl_ros.core.errors import InputError
-from pearl_ros.evaluation.sets import Task, run_task, score, summarise
+from pearl_ros.evaluation.sets import Task, format_summaries, run_task, score, summarise
 from pearl_ros.online.config import OnlineConfig
 
 
@@ -46,6 +46,19 @@ def test_summaries_average_per_set_and_count_right_motion_numbers() -> None:
         'a', 2, 25.0, 50.0, 2.0)
     assert math.isnan(a.outlier_recall_pct)
     assert (b.dataset, b.items, b.mean_pct) == ('b', 1, 0.0)
+    assert math.isnan(a.half_pct) and math.isnan(b.half_pct)  # no stream items
+
+
+def test_the_second_half_column_averages_the_stream_items_only() -> None:
+    truth = np.array([0, 1])
+    scores = [score('s', 'x', truth, truth, 1.0, 2, half_pct=10.0),
+              score('s', 'y', truth, truth, 1.0, 2, half_pct=30.0),
+              score('b', 'z', truth, truth, 1.0, 2)]
+    streams, batch = summarise(scores)
+    assert streams.half_pct == pytest.approx(20.0) and math.isnan(batch.half_pct)
+    table = format_summaries([streams, batch]).splitlines()
+    assert table[0].split()[-3:] == ['2nd', 'half', '%']
+    assert table[1].split()[-1] == '20.00' and table[2].split()[-1] == '-'
 
 
 def _write_clip(path: Path, affine_scene, frames: int = 8) -> np.ndarray:
@@ -73,6 +86,26 @@ def test_a_clip_of_two_bodies_is_segmented_in_every_mode(
     assert result.dataset == f'kt3dmoseg_{mode}' and result.name == 'Seq001_Clip01'
     assert result.motions_true == 2
     assert result.error_pct < 5.0, result
+    assert math.isnan(result.half_pct) == (mode != 'stream')
+
+
+def test_a_streamed_clip_reports_the_mean_error_of_its_second_half(tmp_path: Path,
+                                                                  affine_scene) -> None:
+    # The mean of the per-frame errors of frames 4-7 of an 8-frame clip, measured here with the
+    # online segmenter and the metric directly.
+    from pearl_ros.core.metrics import misclassification
+    from pearl_ros.datasets.kt3dmoseg import load_clip
+    from pearl_ros.online.segmenter import OnlineSegmenter
+
+    path = tmp_path / 'Seq001_Clip01_Tracks.mat'
+    _write_clip(path, affine_scene)
+    online = OnlineConfig(budget_ms=0.0)
+    result = run_task(Task('kt3dmoseg', str(path), 'stream', PearlConfig(), online))
+    segmenter = OnlineSegmenter(PearlConfig(), online)
+    errors = [misclassification(segmenter.process(1_000_000_000 + t, ids, uv).labels, truth)
+              for t, (ids, uv, truth) in enumerate(load_clip(str(path)).frames())]
+    assert len(errors) == 8 and max(errors[4:]) > 0.0  # not a mean of zeros
+    assert result.half_pct == pytest.approx(100.0 * np.mean(errors[4:]))
 
 
 def _write_pair(path: Path, mismatches: int = 0) -> np.ndarray:
