@@ -239,9 +239,12 @@ def summary_lines(summary: Summary) -> list[str]:
         lines.append(f'outliers: {summary.outliers_found} of the {summary.true_outliers} '
                      'features the truth calls outliers were labelled -1')
     if summary.unlabelled:
-        lines.append(f'not counted: {_frames(summary.unlabelled)}, without labels'
-                     + (' (a motion needs two frames: the first has none)'
-                        if summary.unlabelled[0] == 0 else ''))
+        why = ''
+        if summary.unlabelled[0] == 0:
+            why = ' (a motion needs two frames: the first has none' + (
+                '; under a time budget the first fit can take a few frames more)'
+                if len(summary.unlabelled) > 1 else ')')
+        lines.append(f'not counted: {_frames(summary.unlabelled)}, without labels{why}')
     if summary.untruthed:
         lines.append(f'not counted: {summary.untruthed} frame(s) without ground truth')
     return lines

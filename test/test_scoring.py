@@ -59,3 +59,8 @@ def test_the_summary_counts_frames_with_labels_and_truth_only() -> None:
         'not counted: 1 frame(s) without ground truth',
     ]
     assert summary_lines(summarise(rows[:1])) == ['misclassification: n/a (nothing was labelled)']
+    # Frames after the first without labels: a budgeted first fit still under way.
+    late = summarise([score_frame(k, IDS, np.full(4, -1), truth) for k in range(2)] + rows[1:2])
+    assert summary_lines(late)[-1] == (
+        'not counted: frames 0, 1, without labels (a motion needs two frames: the first has '
+        'none; under a time budget the first fit can take a few frames more)')

@@ -19,9 +19,10 @@ from __future__ import annotations
 import dataclasses
 import math
 import time
-from collections.abc import Iterator
+from collections.abc import Generator, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field
+from typing import TypeVar
 
 import numpy as np
 
@@ -35,6 +36,8 @@ from pearl_ros.core.models import MotionModel, get_model
 from pearl_ros.core.neighbourhood import Neighbourhood, nearest_neighbours, neighbourhood
 from pearl_ros.core.proposals import mixed_samples, uniform_samples
 from pearl_ros.core.scale import local_scale
+
+_T = TypeVar('_T')
 
 OUTLIER_ROW = 0  # the row of the cost table (the optimiser's label) of the outlier label
 # The quantile of the points' least pair misses that isolation is measured in: low, so that it
@@ -120,7 +123,12 @@ def sweep(problem: Problem, labels: np.ndarray, settings: SolverSettings | None 
     use when it started, once each (the first pass's first moves), unless every point is
     still an outlier.
     """
-    settings = settings or SolverSettings()
+    return _run(_sweep_moves(problem, labels, settings or SolverSettings(), deadline))
+
+
+def _sweep_moves(problem: Problem, labels: np.ndarray, settings: SolverSettings,
+                 deadline: float | None) -> Generator[None, None, np.ndarray]:
+    """:func:`sweep`, yielding before each expansion move; returns the labels."""
     unary, costs = problem.unary, problem.label_costs
     current = energy(problem, labels)
     in_use = np.zeros(unary.shape[0], dtype=bool)
@@ -150,6 +158,7 @@ def sweep(problem: Problem, labels: np.ndarray, settings: SolverSettings | None 
             if stale[alpha]:
                 failed += int(not used[alpha])
                 continue
+            yield
             moved = expansion_move(problem, labels, alpha)
             moved_energy = energy(problem, moved)
             if moved_energy < current - 1e-9:
@@ -376,29 +385,115 @@ def fit(
     -------
     PearlResult
     """
-    config = config or PearlConfig()
-    rng = np.random.default_rng(rng)
+    return _run(_steps(tracks, config or PearlConfig(), np.random.default_rng(rng), init,
+                       deadline, init_cost, propose, graph))
+
+
+def _run(steps: Generator[object, None, _T]) -> _T:
+    """Run the steps of a generator to its end; its return value."""
+    while True:
+        try:
+            next(steps)
+        except StopIteration as done:
+            result: _T = done.value
+            return result
+
+
+def _timed_steps(timings: dict[str, float], step: str, steps: Generator[None, None, _T]
+                 ) -> Generator[None, None, _T]:
+    """``yield from steps``, adding the seconds spent in them (not between) to
+    ``timings[step]``."""
+    while True:
+        start = time.perf_counter()
+        try:
+            next(steps)
+        except StopIteration as done:
+            timings[step] += time.perf_counter() - start
+            result: _T = done.value
+            return result
+        timings[step] += time.perf_counter() - start
+        yield
+
+
+class SlicedFit:
+    """A :func:`fit` run a slice at a time: the same steps in the same order, so the same result
+    for the same seed, however it is sliced.
+
+    Each :meth:`advance` runs whole steps (the setup; one round's proposals; one expansion
+    move; one model's refit; one split trial; one merge candidate)
+    until the ``deadline`` it is given has passed,
+    at least one step, and returns the result once the last step has run. The online segmenter
+    runs a budgeted cold start this way, over as many frames as it takes, instead of letting one
+    frame take it all, and answers the frames before it is done with :attr:`labels`. The
+    arguments are those of a cold :func:`fit` (no ``init``); its ``deadline``, if given, ends
+    the whole fit early as it ends :func:`fit`.
+    """
+
+    def __init__(self, tracks: np.ndarray, config: PearlConfig | None = None,
+                 rng: np.random.Generator | int | None = None,
+                 graph: Neighbourhood | None = None, deadline: float | None = None) -> None:
+        self._steps = _steps(tracks, config or PearlConfig(), np.random.default_rng(rng), None,
+                             deadline, 0.0, True, graph)
+        self.result: PearlResult | None = None
+        self.steps_run = 0
+        self._search: _Search | None = None
+
+    @property
+    def labels(self) -> np.ndarray | None:
+        """The labelling so far, 0..K-1 per track (the models in use), -1 outliers: the
+        result's once done; None before the setup has run."""
+        if self.result is not None:
+            return self.result.labels
+        if self._search is None:
+            return None
+        labels = self._search.labels
+        _, segments = np.unique(labels, return_inverse=True)
+        segments = segments.reshape(-1) - int(np.any(labels == OUTLIER_ROW))
+        return np.where(labels == OUTLIER_ROW, OUTLIER, segments)
+
+    def advance(self, deadline: float) -> PearlResult | None:
+        """Run steps until ``deadline`` (a ``time.perf_counter()`` value) has passed, at least
+        one; the result when the fit is done (then and on later calls), else None."""
+        while self.result is None:
+            try:
+                search = next(self._steps)
+            except StopIteration as done:
+                self.result = done.value
+            else:
+                self._search = search or self._search
+            self.steps_run += 1
+            if _past(deadline):
+                break
+        return self.result
+
+
+def _steps(tracks: np.ndarray, config: PearlConfig, rng: np.random.Generator,
+           init: np.ndarray | None, deadline: float | None, init_cost: float, propose: bool,
+           graph: Neighbourhood | None) -> Generator[_Search | None, None, PearlResult]:
+    """:func:`fit`'s steps: yields the search once set up, then None before each step
+    (:class:`SlicedFit`); returns the result."""
     timings = {'setup': 0.0, 'propose': 0.0, 'expand': 0.0, 'refit': 0.0}
     with _timed(timings, 'setup'):
         setting = _setting(tracks, config, rng, graph)
     if not init_cost >= 0:
         raise InputError(f'init_cost must be >= 0, got {init_cost!r}')
     search = _start(setting, init, init_cost)
+    yield search
     history: list[float] = []  # the energy after every iteration and every round's merges
     iterations = 0
     for _ in range(config.rounds):
         if iterations and _past(deadline):
             break
         if propose or init is None:
+            yield None
             with _timed(timings, 'propose'):
                 search.add(*_propose(search, config, rng))
-        energies = _descend(search, config.max_iterations, deadline, timings)
+        energies = yield from _descend(search, config.max_iterations, deadline, timings)
         history += energies
         iterations += len(energies)
         # Segments of one motion that no expansion joins are merged once the round settles.
-        with _timed(timings, 'refit'):
-            if _merge(search, deadline):
-                history.append(search.energy())
+        if (yield from _timed_steps(timings, 'refit', _merge(search, deadline))):
+            history.append(search.energy())
         search.compress()  # only the models in use go on (into the next round, the result)
     return PearlResult(np.where(search.labels == OUTLIER_ROW, OUTLIER, search.labels - 1),
                        search.params, search.sigmas, search.energy(), tuple(history),
@@ -406,25 +501,25 @@ def fit(
 
 
 def _descend(search: _Search, max_iterations: int, deadline: float | None,
-             timings: dict[str, float]) -> list[float]:
+             timings: dict[str, float]) -> Generator[None, None, list[float]]:
     """Expand and re-estimate while the energy goes down: the inner loop of a round.
 
     Each iteration sweeps alpha-expansions over every label (:func:`sweep`), re-estimates the
     models in use (:func:`_refit`) and tries split moves (:func:`_split`). Past the
     ``deadline``, the sweep and the split moves stop between moves, and no iteration starts
-    after the first. Returns the energy after each iteration run.
+    after the first. Yields before each expansion move, model refit and split trial;
+    returns the energy after each iteration run.
     """
     energies: list[float] = []
     current = search.energy()
     for step in range(max_iterations):
         if step and _past(deadline):
             break
-        with _timed(timings, 'expand'):
-            search.labels = sweep(search.problem, search.labels, search.setting.solver,
-                                  deadline)
-        with _timed(timings, 'refit'):
-            _refit(search)
-            _split(search, deadline)
+        search.labels = yield from _timed_steps(
+            timings, 'expand',
+            _sweep_moves(search.problem, search.labels, search.setting.solver, deadline))
+        yield from _timed_steps(timings, 'refit', _refit(search))
+        yield from _timed_steps(timings, 'refit', _split(search, deadline))
         energies.append(search.energy())
         if not energies[-1] < current - 1e-9:
             break
@@ -722,11 +817,11 @@ def _refit_one(setting: _Setting, members: np.ndarray, start: np.ndarray) -> _Re
     return new, sigma, residuals[0], row
 
 
-def _refit(search: _Search) -> int:
+def _refit(search: _Search) -> Generator[None, None, int]:
     """Re-estimate every model in use, and its noise level, from its points; keep a refit only
     if it lowers their cost, so the energy never goes up. A model already fitted to the same
-    points in closed form is left as it is (its refit would be itself). Returns the models
-    refitted."""
+    points in closed form is left as it is (its refit would be itself). Yields before each
+    model's refit; returns the models refitted."""
     labels, unary, bias = search.labels, search.unary, search.bias
     refitted = 0
     for label in np.unique(labels):
@@ -735,6 +830,7 @@ def _refit(search: _Search) -> int:
         members = np.flatnonzero(labels == label)
         if search.refitted_already(label, members):
             continue
+        yield
         fitted = _refit_one(search.setting, members, search.params[label - 1])
         if fitted is not None and (fitted[3][members].sum()
                                    < unary[label, members].sum() - bias[label, members].sum()):
@@ -743,7 +839,7 @@ def _refit(search: _Search) -> int:
     return refitted
 
 
-def _split(search: _Search, deadline: float | None = None) -> int:
+def _split(search: _Search, deadline: float | None = None) -> Generator[None, None, int]:
     """Split moves: expansions judged after the models that lose points are refitted to what is
     left. Returns the moves kept.
 
@@ -752,13 +848,14 @@ def _split(search: _Search, deadline: float | None = None) -> int:
     it still pay for it. Here the few most promising unused labels (:func:`_split_candidates`)
     are expanded, the losing models refitted, and the move kept only if the whole energy drops.
     Past the ``deadline`` no trial starts but the first: the one that lets a budgeted stream
-    split a motion over its frames, one trial a frame.
+    split a motion over its frames, one trial a frame. Yields before each trial.
     """
     kept = 0
     current = search.energy()
     for tried, alpha in enumerate(_split_candidates(search)):
         if tried and _past(deadline):
             break
+        yield
         trial = _split_trial(search, alpha)
         if trial is not None and trial[2] < current - 1e-9:
             search.labels, refits, current = trial
@@ -823,7 +920,7 @@ def _split_trial(search: _Search, alpha: int
     return moved, refits, moved_energy
 
 
-def _merge(search: _Search, deadline: float | None = None) -> int:
+def _merge(search: _Search, deadline: float | None = None) -> Generator[None, None, int]:
     """Merge moves: two neighbouring segments become one, its model refitted to both. Returns
     the merges made.
 
@@ -832,9 +929,13 @@ def _merge(search: _Search, deadline: float | None = None) -> int:
     two though one model of both lowers the energy. Each pair of segments that share a
     neighbour edge is tried, the larger keeping its label; the best merge that lowers the energy
     is made (:func:`_best_merge`), and the pairs are tried again, until the ``deadline``.
+    Yields before each pair's trial.
     """
     merges = 0
-    while not _past(deadline) and (best := _best_merge(search, deadline)) is not None:
+    while not _past(deadline):
+        best = yield from _best_merge(search, deadline)
+        if best is None:
+            break
         keep, drop, fitted = best
         search.labels = np.where(search.labels == drop, keep, search.labels)
         search.adopt(keep, fitted, np.flatnonzero(search.labels == keep))
@@ -843,7 +944,7 @@ def _merge(search: _Search, deadline: float | None = None) -> int:
 
 
 def _best_merge(search: _Search, deadline: float | None = None
-                ) -> tuple[int, int, _Refit] | None:
+                ) -> Generator[None, None, tuple[int, int, _Refit] | None]:
     """The merge that lowers the energy most: the label kept, the label dropped and the kept
     model's refit to both segments; None if no merge lowers it. Past the ``deadline``, the
     best of the pairs tried so far."""
@@ -865,6 +966,7 @@ def _best_merge(search: _Search, deadline: float | None = None
     for (x, y), freed in zip(pairs, uncut, strict=True):
         if _past(deadline):
             break
+        yield
         keep, drop = (x, y) if size[x] >= size[y] else (y, x)
         members = np.flatnonzero((labels == keep) | (labels == drop))
         fitted = _refit_one(search.setting, members, search.params[keep - 1])

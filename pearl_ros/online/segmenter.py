@@ -33,11 +33,16 @@ from pearl_ros.core.errors import InputError
 from pearl_ros.core.labels import OUTLIER, num_motions
 from pearl_ros.core.models import get_model
 from pearl_ros.core.neighbourhood import Neighbourhood, neighbourhood
-from pearl_ros.core.pearl import PearlResult, assign, fit, noise_scale
+from pearl_ros.core.pearl import PearlResult, SlicedFit, assign, fit, noise_scale
 from pearl_ros.online.config import OnlineConfig
 from pearl_ros.online.window import SlidingWindow, lookup
 
 _TWO_VIEW = ('fundamental', 'homography')
+# A budgeted cold start is the unbudgeted one (every round of num_proposals) run a budget's
+# worth a frame (SlicedFit), and starts no expand / re-estimate iteration after this many
+# budgets from its start: its final labels come a few frames late, and no frame waits for all
+# of it. (One round in 4 budgets cost the streams 0.4-2 points: docs/experiments.md.)
+COLD_BUDGETS = 8
 
 
 @dataclass(frozen=True)
@@ -97,6 +102,7 @@ class OnlineSegmenter:
         self._configs: tuple[tuple[str, float, str] | None, PearlConfig] = (None, self.config)
         self._energy_ref = 0.0  # energy per feature of that fit
         self._graph: tuple[str, Neighbourhood] | None = None  # model, last fit's neighbourhood
+        self._cold: _ColdStart | None = None  # a budgeted cold start under way
 
     @property
     def frames_in_window(self) -> int:
@@ -109,6 +115,7 @@ class OnlineSegmenter:
         self._scales = {}
         self._quiet = 0
         self._graph = None
+        self._cold = None
 
     def reconfigure(self, config: PearlConfig | None = None,
                     online: OnlineConfig | None = None) -> None:
@@ -117,6 +124,7 @@ class OnlineSegmenter:
         if config is not None:
             self.config = config
         self._configs = (None, self.config)
+        self._cold = None  # a cold start under way is begun again with the new parameters
         if online is not None:
             self._window.resize(online.window)
             if online.seed != self.online.seed:
@@ -150,7 +158,6 @@ class OnlineSegmenter:
             self.reset()
 
         finite = np.all(np.isfinite(uv), axis=1)
-        labels = np.full(ids.size, OUTLIER, dtype=np.int64)
         seen = np.flatnonzero(finite)
         # Features in id order: the proposals sample by position, so that labels must not depend
         # on the order a tracker lists its features in.
@@ -173,6 +180,10 @@ class OnlineSegmenter:
             # Every spanning track, as a view (no copy), unless max_fitted chose some.
             pick = slice(None) if chosen is None else chosen
             warm = self.online.warm_start and bool(np.any(prior[pick] != OUTLIER))
+            if self._cold is not None or (not warm and self.online.warm_start
+                                          and self.online.budget_ms > 0):
+                return self._cold_slice(tracks[:, pick], fitted_keys[pick], model_name, keys,
+                                        seen, ids.size, stamp_ns, reset, start)
             result, config = self._fit(tracks[:, pick], fitted_keys[pick], model_name,
                                        prior[pick], warm, start)
             segments = result.labels
@@ -194,13 +205,54 @@ class OnlineSegmenter:
                                            self.online.neighbours)
         else:
             span, model_name = 0, ''
+        return self._answer(keys, motion_labels, seen, ids.size, stamp_ns, span,
+                            int(fitted.size) if span else 0, model_name, reset, warm, start)
+
+    def _answer(self, keys: np.ndarray, motion_labels: np.ndarray, seen: np.ndarray, n: int,
+                stamp_ns: int, span: int, fitted: int, model_name: str, reset: bool,
+                warm: bool, start: float) -> FrameResult:
+        """The frame's result from the motion numbers of its tracks ``keys`` (the features
+        ``seen`` of ``n``), which the next frame starts from."""
+        labels = np.full(n, OUTLIER, dtype=np.int64)
         labels[seen] = motion_labels
         labelled = np.flatnonzero(motion_labels != OUTLIER)
         by_key = labelled[np.argsort(keys[labelled], kind='stable')]
         self._labelled_keys, self._labelled_motions = keys[by_key], motion_labels[by_key]
-        return FrameResult(stamp_ns, labels, num_motions(motion_labels), span,
-                           int(fitted.size) if span else 0, model_name, reset, warm,
-                           time.perf_counter() - start)
+        return FrameResult(stamp_ns, labels, num_motions(motion_labels), span, fitted,
+                           model_name, reset, warm, time.perf_counter() - start)
+
+    def _cold_slice(self, tracks: np.ndarray, fitted_keys: np.ndarray, model_name: str,
+                    keys: np.ndarray, seen: np.ndarray, n: int, stamp_ns: int, reset: bool,
+                    start: float) -> FrameResult:
+        """A frame of a budgeted cold start: the fit of the frame it began on (``tracks`` of
+        ``fitted_keys``, when none is under way) goes on for a budget's worth. The tracks it
+        fits get the motions of its labelling so far (every feature -1 before its first move);
+        once it is done, the next frame starts warm from its labels."""
+        budget = self.online.budget_ms / 1e3
+        if self._cold is None:
+            graph = neighbourhood(tracks, fitted_keys, None, self.config.solver)
+            self._graph = (model_name, graph)
+            noise = self.config.noise or self._scale(tracks, model_name, graph)
+            config = self._config(model_name, noise, 'cold')
+            order = np.argsort(fitted_keys, kind='stable')
+            self._cold = _ColdStart(
+                SlicedFit(tracks, config, self._rng, graph, start + COLD_BUDGETS * budget),
+                fitted_keys[order], order, model_name, tracks.shape[0])
+        cold = self._cold
+        result = cold.fit.advance(start + budget)
+        segments = cold.fit.labels
+        if segments is None or not np.any(segments != OUTLIER):
+            return self._answer(keys, np.full(keys.size, OUTLIER, dtype=np.int64), seen, n,
+                                stamp_ns, 0, 0, '', reset, False, start)
+        if result is not None:
+            self._cold = None
+            self._quiet, self._energy_ref = 0, result.energy / max(cold.keys.size, 1)
+        # The labels so far (the result's once done), numbered as the last frame answered.
+        prior = lookup(self._labelled_keys, self._labelled_motions, cold.keys, OUTLIER)
+        numbers = self._identify(segments[cold.order], prior)
+        motion_labels = lookup(cold.keys, numbers, keys, OUTLIER)
+        return self._answer(keys, motion_labels, seen, n, stamp_ns, cold.frames,
+                            int(cold.keys.size), cold.model, reset, False, start)
 
     def _model_name(self, span: int) -> str:
         if self.config.model in _TWO_VIEW:
@@ -233,10 +285,8 @@ class OnlineSegmenter:
             _, init = np.unique(prior, return_inverse=True)
             init = init.reshape(-1) - int(np.any(prior == OUTLIER))
         elif deadline is not None:
-            # A budgeted cold start draws one round of num_proposals: the frames after it draw
-            # more at the warm cadence. (Fresh samples are cheap next to the moves the deadline
-            # cuts; a warm frame's 30 instead cost the Hopkins155 stream 0.4 points, and owing
-            # the cold start's other rounds to the next frames a point, BENCHMARKS.md.)
+            # Without a warm start every frame is a cold fit within the frame's budget: one
+            # round of num_proposals, the round the budget leaves time for.
             config = self._config(model_name, noise, 'slice')
         else:
             config = self._config(model_name, noise, 'cold')
@@ -254,7 +304,7 @@ class OnlineSegmenter:
 
     def _config(self, model_name: str, noise: float, kind: str) -> PearlConfig:
         """The fit's configuration: ``self.config`` with ``model_name`` and ``noise``, and for a
-        ``kind`` of fit ``'warm'`` the warm-start settings, ``'slice'`` a budgeted cold start's
+        ``kind`` of fit ``'warm'`` the warm-start settings, ``'slice'`` a budgeted cold fit's
         one round of proposals, ``'cold'`` none. Kept until the next change: building and
         checking one costs 0.5 ms, a frame's worth of warm fit."""
         key = (model_name, noise, kind)
@@ -307,6 +357,18 @@ class OnlineSegmenter:
         inlier = segments != OUTLIER
         out[inlier] = number[segments[inlier]]
         return out
+
+
+@dataclass
+class _ColdStart:
+    """A budgeted cold start under way: its fit, the keys of the tracks it fits (sorted) and
+    their order in its tracks, its model family and the frames it fits over."""
+
+    fit: SlicedFit
+    keys: np.ndarray
+    order: np.ndarray
+    model: str
+    frames: int
 
 
 def _check_frame(stamp_ns: int, ids: np.ndarray, uv: np.ndarray

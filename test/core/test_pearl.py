@@ -76,6 +76,30 @@ def test_fit_is_deterministic_for_a_seed(affine_scene):
     assert first.energy == again.energy
 
 
+@pytest.mark.parametrize('model', ['affine', 'fundamental'])
+def test_a_fit_in_slices_is_the_fit_however_it_is_sliced(affine_scene, model):
+    # One step per slice (a deadline already past) and one slice for all (no deadline in
+    # sight) give the labels, models and energy of fit itself, for the same seed.
+    tracks, _ = affine_scene(sizes=(80, 60), noise=1.0, seed=2)
+    if model == 'fundamental':
+        tracks = tracks[[0, -1]]
+    config = PearlConfig(model=model, rounds=2)
+    whole = fit(tracks, config, rng=7)
+    stepwise = pearl.SlicedFit(tracks, config, rng=7)
+    results = [stepwise.advance(0.0) for _ in range(200)]
+    done = next(i for i, r in enumerate(results) if r is not None)
+    # Setup, then per round its proposals, and per iteration at least one expansion move.
+    assert done + 1 == stepwise.steps_run >= 1 + config.rounds + whole.iterations
+    assert all(r is None for r in results[:done]) and all(r is results[done]
+                                                         for r in results[done:])
+    at_once = pearl.SlicedFit(tracks, config, rng=7).advance(float('inf'))
+    for sliced in (results[done], at_once):
+        assert sliced is not None
+        assert np.array_equal(sliced.labels, whole.labels)
+        assert np.array_equal(sliced.params, whole.params)
+        assert sliced.energy == whole.energy and sliced.iterations == whole.iterations
+
+
 def test_a_given_neighbourhood_is_the_one_fit_builds(affine_scene):
     tracks, _ = affine_scene(sizes=(80, 60), noise=1.0, seed=2)
     given = fit(tracks, rng=7, graph=neighbourhood(tracks))
@@ -320,7 +344,11 @@ def test_merge_moves_join_two_halves_of_one_body(seed, monkeypatch):
     assert merged.energy == pytest.approx(history[-1], rel=1e-9)
     assert merged.energy == pytest.approx(evaluate_segmentation(tracks, one, rng=0)[0], rel=1e-9)
     # ... and expansions alone do not: neither half's model fits the other half.
-    monkeypatch.setattr(pearl, '_merge', lambda search, deadline=None: 0)
+    def no_merges(search, deadline=None):
+        yield from ()
+        return 0
+
+    monkeypatch.setattr(pearl, '_merge', no_merges)
     assert fit(tracks, rng=0, init=halves, propose=False).num_models == 2
 
 

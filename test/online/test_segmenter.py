@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import functools
 
 import numpy as np
 import pytest
@@ -21,6 +22,12 @@ WINDOW = OnlineConfig().window
 # No time budget: labels must not depend on the machine's load, or runs that should agree
 # exactly (feature order, a refused bad frame) would differ whenever the budget bites.
 UNTIMED = OnlineConfig(budget_ms=0.0)
+
+
+def same_partition(a, b):
+    """Whether labellings ``a`` and ``b`` group the points alike, whatever their numbers."""
+    pairs = np.unique(np.stack([a, b]), axis=1).shape[1]
+    return pairs == np.unique(a).size == np.unique(b).size
 
 
 def run(frames, segmenter=None):
@@ -257,7 +264,7 @@ def test_same_seed_same_frames_same_labels():
 @pytest.mark.parametrize('model', ['fundamental', 'homography'])
 def test_two_frame_windows_use_the_two_view_model(model):
     frames = list(synthetic_stream(100, 2, (BodySpec(0.4),), seed=11))
-    seg = OnlineSegmenter(online=OnlineConfig(two_view_model=model))
+    seg = OnlineSegmenter(online=OnlineConfig(two_view_model=model, budget_ms=0.0))
     results = [seg.process(f.stamp_ns, f.ids, f.uv) for f in frames]
     assert results[0].model == '' and results[1].model == model and results[1].frames == 2
 
@@ -284,28 +291,97 @@ def test_a_budget_smaller_than_any_frame_still_converges_one_slice_a_frame():
         assert misclassification(results[-1].labels, frames[-1].truth) < 0.02
 
 
-def test_a_budgeted_cold_start_draws_one_round_of_proposals(monkeypatch):
-    # Unbudgeted, the cold fit draws num_proposals in each of its rounds; budgeted, one round
-    # of them, and the frames after it propose at the warm cadence.
+def test_a_budgeted_cold_start_draws_what_the_unbudgeted_one_draws(monkeypatch):
+    # Budgeted or not, the cold fit draws num_proposals in each of its rounds (budgeted, over
+    # the frames it takes), and the frames after it propose at the warm cadence.
     from pearl_ros.online import segmenter as module
 
     drawn = []
-    real = module.fit
+    real, real_sliced = module.fit, module.SlicedFit
 
     def spy(tracks, config, rng, **kwargs):
         drawn.append((config.num_proposals, config.rounds, kwargs['propose']))
         return real(tracks, config, rng, **kwargs)
 
+    def sliced_spy(tracks, config, rng, graph, deadline):
+        drawn.append((config.num_proposals, config.rounds, True))
+        return real_sliced(tracks, config, rng, graph, deadline)
+
     monkeypatch.setattr(module, 'fit', spy)
+    monkeypatch.setattr(module, 'SlicedFit', sliced_spy)
     frames = list(synthetic_stream(150, 12, (BodySpec(0.3),), seed=2))
     cold = PearlConfig()
-    for budget, first in ((0.0, (cold.num_proposals, cold.rounds, True)),
-                          (1e-6, (cold.num_proposals, 1, True))):
+    for budget in (0.0, 1e-6):
         drawn.clear()
         run(frames, OnlineSegmenter(online=dataclasses.replace(UNTIMED, budget_ms=budget)))
-        assert drawn[0] == first
+        assert drawn[0] == (cold.num_proposals, cold.rounds, True)
+        assert len(drawn) > 1
         assert all(n == UNTIMED.warm_proposals and r == UNTIMED.warm_rounds
                    for n, r, _ in drawn[1:])
+
+
+def test_a_cold_start_in_slices_ends_with_the_labels_of_the_unbudgeted_one(monkeypatch):
+    # With no cap on the budgets it may take, the budgeted cold start is the unbudgeted cold
+    # fit of the same frame run a millisecond's worth a frame: however its steps fall into
+    # frames, when it is done the features still seen carry the labels the unbudgeted
+    # segmenter gave them on that frame (up to the numbers, which follow the frames before).
+    from pearl_ros.online import segmenter as module
+
+    monkeypatch.setattr(module, 'COLD_BUDGETS', 1e15)
+    # Every 8th frame, so that the first fit, two frames apart, finds the three motions.
+    frames = list(synthetic_stream(150, 8 * 120, (BodySpec(0.3), BodySpec(0.25)),
+                                   death_rate=0.0, seed=4))[::8]
+    _, sliced = run(frames, OnlineSegmenter(online=dataclasses.replace(UNTIMED,
+                                                                       budget_ms=1.0)))
+    _, free = run(frames[:2])
+    done = next(t for t, r in enumerate(sliced) if r.warm) - 1
+    assert done > 1 and free[1].motions == 3
+    # Tracks seen on every frame since (one lost and found again is a new track).
+    kept = functools.reduce(np.intersect1d, [f.ids for f in frames[:done + 1]])
+    assert kept.size > 100
+    here = np.flatnonzero(np.isin(frames[done].ids, kept))
+    here = here[np.argsort(frames[done].ids[here])]
+    there = np.flatnonzero(np.isin(frames[1].ids, kept))
+    there = there[np.argsort(frames[1].ids[there])]
+    assert same_partition(sliced[done].labels[here], free[1].labels[there])
+
+
+def test_a_budgeted_cold_start_answers_its_labels_so_far_until_its_fit_is_done(monkeypatch):
+    # A budget far below any step, no cap on the budgets: the cold fit runs one step a frame.
+    # Before its first move every feature is -1; from then on the tracks it fits carry its
+    # labelling so far, and from the frame after it is done the frames start warm.
+    from pearl_ros.online import segmenter as module
+
+    monkeypatch.setattr(module, 'COLD_BUDGETS', 1e15)
+    frames = list(synthetic_stream(150, 120, (BodySpec(0.4),), seed=3))
+    _, results = run(frames, OnlineSegmenter(online=dataclasses.replace(UNTIMED,
+                                                                        budget_ms=1e-6)))
+    first = next(t for t, r in enumerate(results) if r.motions)
+    done = next(t for t, r in enumerate(results) if r.warm) - 1
+    assert 1 < first < done  # the first fit (two frames) took several frames
+    for r in results[:first]:
+        assert np.all(r.labels == OUTLIER) and r.model == '' and r.frames == 0 and not r.warm
+    for r, frame in zip(results[first:done + 1], frames[first:done + 1], strict=True):
+        assert r.model == 'fundamental' and r.frames == 2 and not r.warm
+        # Tracks born since frame 1 wait for the warm frames; the fit's tracks have motions.
+        born = ~np.isin(frame.ids, frames[1].ids)
+        assert r.motions >= 1 and np.all(r.labels[born] == OUTLIER)
+    assert all(r.warm for r in results[done + 1:])
+    assert results[-1].motions == 2
+    assert misclassification(results[-1].labels, frames[-1].truth) < 0.05
+
+
+def test_a_reset_drops_a_cold_start_under_way():
+    frames = list(synthetic_stream(150, 12, (BodySpec(0.4),), seed=3))
+    seg = OnlineSegmenter(online=dataclasses.replace(UNTIMED, budget_ms=1e-6))
+    run(frames[:3], seg)  # the cold start is under way
+    seg.reset()
+    # Frames from the start again: the cold start begins anew on the new window's first fit,
+    # as on a fresh segmenter.
+    _, again = run(frames, seg)
+    _, fresh = run(frames, OnlineSegmenter(online=dataclasses.replace(UNTIMED,
+                                                                      budget_ms=1e-6)))
+    assert [r.motions for r in again] == [r.motions for r in fresh]
 
 
 def test_chosen_tracks_stay_chosen_as_tracks_that_hash_higher_come_and_go():
