@@ -100,6 +100,25 @@ def test_a_fit_in_slices_is_the_fit_however_it_is_sliced(affine_scene, model):
         assert sliced.energy == whole.energy and sliced.iterations == whole.iterations
 
 
+@pytest.mark.parametrize('model', ['affine', 'fundamental'])
+def test_proposals_offered_in_chunks_are_the_proposals_offered_at_once(affine_scene, model,
+                                                                      monkeypatch):
+    # The chunks only split the fitting and measuring of samples drawn beforehand: any chunk
+    # size gives the fit of one batch.
+    tracks, _ = affine_scene(sizes=(80, 60), noise=1.0, seed=3)
+    if model == 'fundamental':
+        tracks = tracks[[0, -1]]
+    config = PearlConfig(model=model, rounds=2)
+    results = []
+    for chunk in (10**9, 7):
+        monkeypatch.setattr(pearl, 'PROPOSE_CHUNK', chunk)
+        results.append(fit(tracks, config, rng=5))
+    batch, chunked = results
+    assert np.array_equal(batch.labels, chunked.labels)
+    assert np.array_equal(batch.params, chunked.params)
+    assert batch.energy == chunked.energy and batch.energy_history == chunked.energy_history
+
+
 def test_a_given_neighbourhood_is_the_one_fit_builds(affine_scene):
     tracks, _ = affine_scene(sizes=(80, 60), noise=1.0, seed=2)
     given = fit(tracks, rng=7, graph=neighbourhood(tracks))

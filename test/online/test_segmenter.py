@@ -309,7 +309,7 @@ def test_a_budgeted_cold_start_draws_what_the_unbudgeted_one_draws(monkeypatch):
 
     monkeypatch.setattr(module, 'fit', spy)
     monkeypatch.setattr(module, 'SlicedFit', sliced_spy)
-    frames = list(synthetic_stream(150, 12, (BodySpec(0.3),), seed=2))
+    frames = list(synthetic_stream(150, 40, (BodySpec(0.3),), seed=2))
     cold = PearlConfig()
     for budget in (0.0, 1e-6):
         drawn.clear()
