@@ -151,7 +151,7 @@ def _sweep_moves(problem: Problem, labels: np.ndarray, settings: SolverSettings,
                 used = np.zeros(unary.shape[0], dtype=bool)
                 used[labels] = True
                 gain = np.where(used, np.inf, _gain_bound(problem, labels) - costs)
-                yield None  # the bounds cost as much as a move on large problems
+                yield  # the bounds cost as much as a move on large problems
             gain[tried] = -np.inf
             alpha = int(np.argmax(gain))
             if not gain[alpha] > 0 or (failed >= settings.max_failed and not used[alpha]):
@@ -466,7 +466,8 @@ class SlicedFit:
             except StopIteration as done:
                 self.result = done.value
             else:
-                self._search = search or self._search
+                if search is not None:  # the first step's: the search, once set up
+                    self._search = search
             self.steps_run += 1
             if _past(deadline):
                 break

@@ -230,9 +230,7 @@ class OnlineSegmenter:
         once it is done, the next frame starts warm from its labels."""
         budget = self.online.budget_ms / 1e3
         if self._cold is None:
-            graph = neighbourhood(tracks, fitted_keys, None, self.config.solver)
-            self._graph = (model_name, graph)
-            noise = self.config.noise or self._scale(tracks, model_name, graph)
+            graph, noise = self._neighbourhood(tracks, fitted_keys, model_name, None)
             config = self._config(model_name, noise, 'cold')
             order = np.argsort(fitted_keys, kind='stable')
             self._cold = _ColdStart(
@@ -274,9 +272,7 @@ class OnlineSegmenter:
         previous = None
         if not propose and self._graph is not None and self._graph[0] == model_name:
             previous = self._graph[1]
-        graph = neighbourhood(tracks, keys, previous, self.config.solver)
-        self._graph = (model_name, graph)
-        noise = self.config.noise or self._scale(tracks, model_name, graph)
+        graph, noise = self._neighbourhood(tracks, keys, model_name, previous)
         init = None
         budget = self.online.budget_ms
         deadline = start + budget / 1e3 if budget > 0 else None
@@ -301,6 +297,14 @@ class OnlineSegmenter:
         else:
             self._quiet += 1
         return result, config
+
+    def _neighbourhood(self, tracks: np.ndarray, keys: np.ndarray, model_name: str,
+                       previous: Neighbourhood | None) -> tuple[Neighbourhood, float]:
+        """The neighbourhood of ``tracks`` (kept for the next frame) and the noise scale of
+        ``model_name`` on them (given, or estimated)."""
+        graph = neighbourhood(tracks, keys, previous, self.config.solver)
+        self._graph = (model_name, graph)
+        return graph, self.config.noise or self._scale(tracks, model_name, graph)
 
     def _config(self, model_name: str, noise: float, kind: str) -> PearlConfig:
         """The fit's configuration: ``self.config`` with ``model_name`` and ``noise``, and for a
