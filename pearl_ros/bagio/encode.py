@@ -58,6 +58,10 @@ def _numpy_float32(values: np.ndarray) -> Any:
     return np.ascontiguousarray(values, dtype=np.float32).reshape(-1)
 
 
+def _point_objects(points: Any, index: np.ndarray) -> list[Any]:
+    return [points[i] for i in index.tolist()]  # the input's own Point32 objects
+
+
 def array_uint8(values: np.ndarray) -> array.array:
     """``values`` as ``array.array('B')``, what rclpy's ``uint8[]`` setters take unlooped."""
     return array.array('B', np.ascontiguousarray(values, dtype=np.uint8).tobytes())
@@ -74,21 +78,25 @@ class MessageTypes:
 
     Attributes
     ----------
-    PointCloud2, PointField, PointCloud, ChannelFloat32, Point32 : type
-        ``sensor_msgs/msg/...`` and ``geometry_msgs/msg/Point32`` classes of one library.
+    PointCloud2, PointField, PointCloud, ChannelFloat32 : type
+        ``sensor_msgs/msg/...`` classes of one library.
     uint8s : callable
         (M,) uint8 ndarray -> what the library stores in ``PointCloud2.data``.
     float32s : callable
         (M,) float32 ndarray -> what it stores in ``ChannelFloat32.values``.
+    select_points : callable
+        (a PointCloud's ``points``, (K,) int index) -> the points at ``index``, what the
+        library stores in ``PointCloud.points`` (a list of the input's own ``Point32``
+        objects; :mod:`~pearl_ros.bagio.cdr` holds an array).
     """
 
     PointCloud2: Any
     PointField: Any
     PointCloud: Any
     ChannelFloat32: Any
-    Point32: Any
     uint8s: Callable[[np.ndarray], Any] = _numpy_uint8
     float32s: Callable[[np.ndarray], Any] = _numpy_float32
+    select_points: Callable[[Any, np.ndarray], Any] = _point_objects
 
     @classmethod
     def from_typestore(cls, typestore: Any) -> MessageTypes:
@@ -99,18 +107,16 @@ class MessageTypes:
             PointField=types['sensor_msgs/msg/PointField'],
             PointCloud=types['sensor_msgs/msg/PointCloud'],
             ChannelFloat32=types['sensor_msgs/msg/ChannelFloat32'],
-            Point32=types['geometry_msgs/msg/Point32'],
         )
 
     @classmethod
-    def from_modules(cls, sensor_msgs: Any, geometry_msgs: Any) -> MessageTypes:
-        """The classes of the rclpy modules ``sensor_msgs.msg`` and ``geometry_msgs.msg``."""
+    def from_module(cls, sensor_msgs: Any) -> MessageTypes:
+        """The classes of the rclpy module ``sensor_msgs.msg``."""
         return cls(
             PointCloud2=sensor_msgs.PointCloud2,
             PointField=sensor_msgs.PointField,
             PointCloud=sensor_msgs.PointCloud,
             ChannelFloat32=sensor_msgs.ChannelFloat32,
-            Point32=geometry_msgs.Point32,
             uint8s=array_uint8,
             float32s=array_float32,
         )
@@ -270,7 +276,7 @@ def _select_pointcloud(msg: Any, keep: np.ndarray, types: MessageTypes, layout: 
     index = np.flatnonzero(point_keep)
     return types.PointCloud(
         header=msg.header,
-        points=[msg.points[i] for i in index.tolist()],  # the input's own Point32 objects
+        points=types.select_points(msg.points, index),
         channels=[
             types.ChannelFloat32(name=name, values=types.float32s(column[index]))
             for name, column in zip(names, values, strict=True)

@@ -29,7 +29,7 @@ from rosbags.rosbag2 import ReaderError as Ros2ReaderError
 from rosbags.serde import SerdeError
 from rosbags.typesys import Stores, TypesysError, get_typestore
 
-from pearl_ros.bagio import decode, encode
+from pearl_ros.bagio import cdr, decode, encode
 from pearl_ros.core.errors import BagError, InputError, one_line
 
 TYPESTORE = get_typestore(Stores.ROS2_KILTED)
@@ -60,6 +60,8 @@ try:  # the sqlite3 storage reads through apsw
     _ROSBAGS_ERRORS += (apsw.Error,)
 except ImportError:  # pragma: no cover - apsw is a dependency of rosbags
     pass
+# What a feature record that cannot be deserialised raises (rosbags for ROS 1, cdr for ROS 2).
+_UNREADABLE: tuple[type[BaseException], ...] = (*_ROSBAGS_ERRORS, InputError)
 
 
 @dataclass(frozen=True)
@@ -109,7 +111,8 @@ class FeatureMessage:
     msgtype : str
         ``'sensor_msgs/msg/PointCloud'`` or ``'sensor_msgs/msg/PointCloud2'``.
     msg : object or None
-        The deserialised message (a rosbags dataclass); None if it could not be deserialised.
+        The deserialised message: a :mod:`~pearl_ros.bagio.cdr` message (arrays) from a ROS 2
+        bag, a rosbags dataclass from a ROS 1 bag; None if it could not be deserialised.
     error : str or None
         One-line reason why ``msg`` is None.
     """
@@ -197,8 +200,11 @@ class FeatureStream:
 
     def _feature(self, index: int, log_time: int, msgtype: str, raw: Any) -> FeatureMessage:
         try:
-            msg = self._reader.deserialize(raw, msgtype)
-        except _ROSBAGS_ERRORS as err:
+            if self.ros1:
+                msg = self._reader.deserialize(raw, msgtype)
+            else:  # arrays straight from the CDR bytes: no Python object per point
+                msg = cdr.read(raw, msgtype)
+        except _UNREADABLE as err:
             reason = f'cannot deserialise {msgtype}: {one_line(err)}'
             return FeatureMessage(index, log_time, msgtype, None, reason)
         return FeatureMessage(index, log_time, msgtype, msg)

@@ -22,7 +22,7 @@ from typing import Any
 
 import numpy as np
 
-from pearl_ros.bagio import decode, encode
+from pearl_ros.bagio import cdr, decode, encode
 from pearl_ros.bagio.reader import TYPESTORE, read_features
 from pearl_ros.core.errors import InputError, one_line
 from pearl_ros.online.segmenter import FrameResult, OnlineSegmenter
@@ -160,8 +160,9 @@ class MessagePipeline:
         Default: every parameter at its default.
     types : MessageTypes, optional
         Classes of the output messages; default: those of rosbags'
-        :data:`~pearl_ros.bagio.reader.TYPESTORE`. The node passes rclpy's
-        (``pearl_ros.ros.convert.TYPES``).
+        :data:`~pearl_ros.bagio.reader.TYPESTORE`. The node and the replay pass
+        :data:`pearl_ros.bagio.cdr.TYPES` and serialise the outputs with
+        :func:`pearl_ros.bagio.cdr.serialize`.
     """
 
     def __init__(self, settings: Settings | None = None,
@@ -186,6 +187,16 @@ class MessagePipeline:
     def reset(self) -> None:
         """Empty the window: the next message starts afresh."""
         self._segmenter.reset()
+
+    @staticmethod
+    def deserialize(raw: bytes, msgtype: str) -> Any:
+        """A serialised (CDR) feature message of type ``msgtype`` as a
+        :mod:`~pearl_ros.bagio.cdr` message, or the :class:`Skipped` of a record that cannot be
+        read (malformed: ``'cannot deserialise ...'``, as the replay says of a bag's record)."""
+        try:
+            return cdr.read(raw, msgtype)
+        except InputError as err:
+            return Skipped.because(f'cannot deserialise {msgtype}: {one_line(err)}')
 
     def read(self, msg: Any) -> tuple[np.ndarray, np.ndarray] | Skipped:
         """Step 1 alone: the ids ``(N,)`` int64 and pixels ``(N, 2)`` of a feature message, or

@@ -30,10 +30,9 @@ from typing import Any
 
 import numpy as np
 
-from pearl_ros.bagio import encode
+from pearl_ros.bagio import cdr, encode
 from pearl_ros.bagio.reader import (
     POINTCLOUD2,
-    TYPESTORE,
     CopiedMessage,
     FeatureStream,
     open_feature_stream,
@@ -49,9 +48,8 @@ OUTPUT_TOPIC = '/motion_labels'
 STATIC_TOPIC = '/static_features'
 TRUTH_TOPIC = '/ground_truth/labels'
 
-MESSAGE_TYPES = encode.MessageTypes.from_typestore(TYPESTORE)
-_Header: Any = TYPESTORE.types['std_msgs/msg/Header']
-_Time: Any = TYPESTORE.types['builtin_interfaces/msg/Time']
+# Outputs are built as pearl_ros.bagio.cdr messages and written as their CDR bytes.
+MESSAGE_TYPES = cdr.TYPES
 
 # (input index, skip) -> None: told of every skipped input message, and of copies that failed.
 WarnCallback = Callable[[int, Skipped], None]
@@ -262,8 +260,8 @@ def _record(index: int, log_time_ns: int, outcome: Labelled | Skipped,
                               'kind': outcome.kind, 'reason': outcome.reason})
         warn(index, outcome)
         return
-    out.write(settings.output_topic, log_time_ns, outcome.labels_msg)
-    out.write(settings.static_topic, log_time_ns, outcome.static_msg)
+    out.write_cdr(settings.output_topic, log_time_ns, cdr.serialize(outcome.labels_msg))
+    out.write_cdr(settings.static_topic, log_time_ns, cdr.serialize(outcome.static_msg))
     result = outcome.result
     stats.frames.append({
         'index': index,
@@ -355,10 +353,8 @@ def write_stats(path: Path, stats: ReplayStats) -> None:
 
 def _ros2_header(header: Any) -> Any:
     """A ROS 2 ``std_msgs/msg/Header`` with ``header``'s stamp and frame (drops ROS 1 ``seq``)."""
-    return _Header(
-        stamp=_Time(sec=int(header.stamp.sec), nanosec=int(header.stamp.nanosec)),
-        frame_id=str(header.frame_id),
-    )
+    return cdr.Header(cdr.Time(int(header.stamp.sec), int(header.stamp.nanosec)),
+                      str(header.frame_id))
 
 
 def _parameters(settings: Settings) -> dict[str, Any]:

@@ -42,10 +42,11 @@ from rclpy.logging import LoggingSeverity
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import QoSProfile, ReliabilityPolicy
+from rclpy.serialization import serialize_message
 from sensor_msgs.msg import ChannelFloat32, PointCloud, PointCloud2
 from std_msgs.msg import Header
 
-from pearl_ros.bagio import decode, encode
+from pearl_ros.bagio import cdr, decode, encode
 from pearl_ros.core.errors import InputError
 from pearl_ros.evaluation import latency
 from pearl_ros.pipeline import settings as pipeline_settings
@@ -72,38 +73,46 @@ def vins_mono_cloud(stamp_ns: int, ids: np.ndarray, uv: np.ndarray) -> PointClou
 
 
 class NoopNode(Node):
-    """The baseline: decodes each feature message as ``pearl_node`` does
-    (:meth:`MessagePipeline.read`) and publishes its ``motion_labels`` with every label -1,
-    on the same topics and QoS. Keyword arguments go to ``rclpy.node.Node``.
+    """The baseline: takes and decodes each feature message as ``pearl_node`` does (raw CDR,
+    :meth:`MessagePipeline.deserialize` and :meth:`~MessagePipeline.read`) and publishes its
+    ``motion_labels`` with every label -1, on the same topics and QoS. Keyword arguments go to
+    ``rclpy.node.Node``.
     """
 
     def __init__(self, settings: pipeline_settings.Settings, **kwargs: Any) -> None:
         super().__init__('pearl_noop', **kwargs)
-        self._pipeline = MessagePipeline(settings, convert.TYPES)
+        self._pipeline = MessagePipeline(settings, cdr.TYPES)
         node = settings.node
+        self._type_name = convert.TYPE_NAMES[node.msg_type]
         self.create_subscription(convert.MSG_CLASSES[node.msg_type], 'features',
-                                 self._on_features, input_qos(node.qos, node.qos_depth))
+                                 self._on_features, input_qos(node.qos, node.qos_depth),
+                                 raw=True)
         self._labels_pub = self.create_publisher(
             PointCloud2, 'motion_labels',
             QoSProfile(depth=OUTPUT_DEPTH, reliability=ReliabilityPolicy.RELIABLE))
 
-    def _on_features(self, msg: Any) -> None:
-        features = self._pipeline.read(msg)
+    def _on_features(self, raw: bytes) -> None:
+        msg = self._pipeline.deserialize(raw, self._type_name)
+        features = msg if isinstance(msg, Skipped) else self._pipeline.read(msg)
         if isinstance(features, Skipped):
             return
         ids, uv = features
         labels = np.full(ids.size, encode.UNLABELLED, dtype=np.int64)
-        self._labels_pub.publish(encode.motion_labels(msg.header, ids, uv, labels,
-                                                      convert.TYPES))
+        self._labels_pub.publish(cdr.serialize(encode.motion_labels(msg.header, ids, uv, labels,
+                                                                    cdr.TYPES)))
 
 
 class Source(Node):
-    """Publishes prepared messages when they come due and times the labels that come back."""
+    """Publishes prepared messages when they come due and times the labels that come back.
+
+    The messages are serialised before the run and published as bytes: a tracker serialises
+    its messages in its own process, and this one is the node's.
+    """
 
     def __init__(self, messages: list[Any], rate_hz: float, **kwargs: Any) -> None:
         super().__init__('pearl_node_bench', **kwargs)
         qos = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
-        self.messages = messages
+        self.messages = [serialize_message(m) for m in messages]
         self.period_s = 1.0 / rate_hz
         self.index = {decode.stamp_ns(m.header): i for i, m in enumerate(messages)}
         self.start = math.nan  # monotonic s when frame 0 is due

@@ -4,13 +4,12 @@ from __future__ import annotations
 
 from typing import Any
 
-import geometry_msgs.msg
 import sensor_msgs.msg
 
 from pearl_ros.bagio import encode
 
 # The rclpy classes (and array.array conversions) the encoders build messages with.
-TYPES = encode.MessageTypes.from_modules(sensor_msgs.msg, geometry_msgs.msg)
+TYPES = encode.MessageTypes.from_module(sensor_msgs.msg)
 
 MSG_CLASSES: dict[str, Any] = {
     'PointCloud': sensor_msgs.msg.PointCloud,

@@ -34,7 +34,7 @@ from rclpy.serialization import deserialize_message
 from sensor_msgs.msg import PointCloud2
 
 from pearl_ros import scoring
-from pearl_ros.bagio import decode, reader
+from pearl_ros.bagio import cdr, decode, reader
 from pearl_ros.core.errors import BagError, PearlError, UsageParser, one_line
 from pearl_ros.pipeline.messages import MessagePipeline, Skipped, SkipWarnings
 from pearl_ros.ros import convert
@@ -95,9 +95,10 @@ def bag_msg_type(path: str | Path, topic: str = FEATURE_TOPIC) -> str:
 def load_bag(path: str | Path, topic: str = FEATURE_TOPIC) -> BagFeatures:
     """The messages of ``topic`` as rclpy messages, from a ROS 2 bag or a ROS 1 ``.bag`` file.
 
-    Each message is read with rosbags (as ``pearl_replay`` reads it), serialised to ROS 2 CDR
-    and handed to rclpy's deserialiser: every field and channel comes through, and a ROS 1
-    message (whose bytes are not CDR) loses only its header's ``seq``. Messages the node would
+    Each message is read as ``pearl_replay`` reads it, serialised to ROS 2 CDR
+    (:func:`pearl_ros.bagio.cdr.serialize`) and handed to rclpy's deserialiser: every field and
+    channel comes through, and a ROS 1 message (whose bytes are not CDR) loses only its
+    header's ``seq``. Messages the node would
     skip (:meth:`~pearl_ros.pipeline.messages.MessagePipeline.read`: malformed, empty) are left
     out and listed in ``skipped``, with the node's reason.
 
@@ -135,10 +136,10 @@ def _playable(item: reader.FeatureMessage, pipeline: MessagePipeline, msg_class:
     if isinstance(features, Skipped):
         return features
     try:
-        cdr = bytes(reader.TYPESTORE.serialize_cdr(item.msg, item.msgtype))
-    except Exception as err:  # rosbags' serialiser raises several kinds
+        raw = cdr.serialize(item.msg)
+    except (TypeError, ValueError, AttributeError, OverflowError) as err:
         return Skipped.because(f'cannot convert to ROS 2: {one_line(err)}')
-    return deserialize_message(cdr, msg_class)
+    return deserialize_message(raw, msg_class)
 
 
 def bag_messages(path: str | Path, topic: str = FEATURE_TOPIC) -> list[Any]:

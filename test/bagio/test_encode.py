@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 from rosbags.typesys import Stores, get_typestore
 
-from pearl_ros.bagio import decode
+from pearl_ros.bagio import cdr, decode
 from pearl_ros.bagio.encode import (
     MessageTypes,
     background_motion,
@@ -35,6 +35,7 @@ class Library:
     types: MessageTypes
     Header: Any
     Time: Any
+    Point32: Any = None  # None: points as an (N, 3) float32 array (pearl_ros.bagio.cdr)
 
     def header(self, sec: int = 12, nanosec: int = 345) -> Any:
         return self.Header(stamp=self.Time(sec=sec, nanosec=nanosec), frame_id='cam0')
@@ -43,7 +44,9 @@ class Library:
         t = self.types
         return t.PointCloud(
             header=self.header(),
-            points=[t.Point32(x=float(x), y=float(y), z=1.0) for x, y in xy],
+            points=(np.array([(x, y, 1.0) for x, y in xy], np.float32).reshape(-1, 3)
+                    if self.Point32 is None
+                    else [self.Point32(x=float(x), y=float(y), z=1.0) for x, y in xy]),
             channels=[
                 t.ChannelFloat32(name=n, values=t.float32s(np.array(v, np.float32)))
                 for n, v in channels
@@ -70,6 +73,9 @@ class Library:
         if self.name == 'rosbags':
             typename = msg.__msgtype__
             return TS.deserialize_cdr(bytes(TS.serialize_cdr(msg, typename)), typename)
+        if self.name == 'cdr':
+            typename = cdr.POINTCLOUD if hasattr(msg, 'channels') else cdr.POINTCLOUD2
+            return cdr.read(cdr.serialize(msg), typename)
         from rclpy.serialization import deserialize_message, serialize_message
 
         return deserialize_message(serialize_message(msg), type(msg))
@@ -77,7 +83,8 @@ class Library:
 
 def _rosbags() -> Library:
     return Library('rosbags', MessageTypes.from_typestore(TS),
-                   TS.types['std_msgs/msg/Header'], TS.types['builtin_interfaces/msg/Time'])
+                   TS.types['std_msgs/msg/Header'], TS.types['builtin_interfaces/msg/Time'],
+                   TS.types['geometry_msgs/msg/Point32'])
 
 
 def _rclpy() -> Library:
@@ -86,13 +93,22 @@ def _rclpy() -> Library:
     from builtin_interfaces.msg import Time
     from std_msgs.msg import Header
 
-    return Library('rclpy', MessageTypes.from_modules(sensor_msgs.msg, geometry_msgs.msg),
-                   Header, Time)
+    return Library('rclpy', MessageTypes.from_module(sensor_msgs.msg), Header, Time,
+                   geometry_msgs.msg.Point32)
 
 
-@pytest.fixture(params=['rosbags', 'rclpy'])
+@pytest.fixture(params=['rosbags', 'rclpy', 'cdr'])
 def lib(request: pytest.FixtureRequest) -> Library:
+    if request.param == 'cdr':
+        return Library('cdr', cdr.TYPES, cdr.Header, cdr.Time)
     return _rosbags() if request.param == 'rosbags' else _rclpy()
+
+
+def _xyz(points: Any) -> list[tuple[float, float, float]]:
+    """A PointCloud's points as (x, y, z) tuples: Point32 objects or an (N, 3) array."""
+    if isinstance(points, np.ndarray):
+        return [tuple(row) for row in points.tolist()]
+    return [(p.x, p.y, p.z) for p in points]
 
 
 def _unpack_labels(msg: Any) -> list[tuple[int, float, float, int]]:
@@ -203,7 +219,7 @@ def test_static_vins_mono_cloud_keeps_every_channel_of_the_kept_points(lib: Libr
     index = [0, 2, 3]
     assert [str(c.name) for c in out.channels] == [name for name, _ in MONO_CHANNELS]
     assert _channel_table(out) == {n: [v[i] for i in index] for n, v in MONO_CHANNELS}
-    np.testing.assert_allclose([(p.x, p.y, p.z) for p in out.points],
+    np.testing.assert_allclose(_xyz(out.points),
                                [(*MONO_XY[i], 1.0) for i in index], rtol=1e-6)
     ids, uv = decode.decode_pointcloud(out, 'auto')
     ids_in, uv_in = decode.decode_pointcloud(msg, 'vins_mono')
@@ -246,7 +262,7 @@ def test_static_vins_fusion_cloud_filters_only_the_selected_camera(
     assert len(out.channels) == 6
     columns = [[float(v) for v in c.values] for c in out.channels]
     assert columns == [[values[i] for i in index] for _, values in FUSION_CHANNELS]
-    np.testing.assert_allclose([(p.x, p.y) for p in out.points],
+    np.testing.assert_allclose([p[:2] for p in _xyz(out.points)],
                                [FUSION_XY[i] for i in index], rtol=1e-6)
     ids0, uv0 = decode.decode_pointcloud(out, layout, camera_id=0)
     np.testing.assert_array_equal(ids0, decode.decode_pointcloud(msg, layout, camera_id=0)[0])

@@ -244,3 +244,24 @@ def test_publisher_of_another_type_is_reported_and_delivers_nothing(ros: Ros) ->
         stranger.destroy_node()
         rclpy.shutdown(context=other)
 
+
+
+def test_records_that_are_not_a_pointcloud_are_counted_and_the_node_goes_on(ros: Ros) -> None:
+    # Raw bytes on the wire, as a broken publisher or a bridge could send them: the node reads
+    # CDR itself (a raw subscription), so a broken record must be its error, not rclpy's.
+    _, probe = _start(ros)
+    probe.send(good(0))
+    whole = serialize_message(good(1))
+    broken = [whole[:40],  # truncated inside the points
+              b'\x00\x07' + whole[2:],  # not an encapsulation CDR has
+              # the point count (bytes 24-27, after the header with frame 'cam0') past the end
+              whole[:24] + b'\xff\xff\xff\x7f' + whole[28:]]
+    for raw in broken:
+        probe.publisher.publish(raw)
+    probe.send(good(2))
+    assert [decode.stamp_ns(m.header) for m in probe.labels] == [T0, T0 + 2 * STEP]
+    values = probe.diagnostics_where(lambda v: v['messages processed'] == '2')
+    assert values['malformed messages'] == '3'
+    assert ros.spin_until(lambda: probe.warnings('skipped (deserialise)'))
+    line = probe.warnings('skipped (deserialise)')[0]
+    assert 'cannot deserialise sensor_msgs/msg/PointCloud' in line and '\n' not in line
