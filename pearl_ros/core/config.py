@@ -135,6 +135,10 @@ class SolverSettings:
     isolation_floor: float = spec(
         5.0, 'noise scales: a point whose most alike neighbour misses it by less is never '
         'isolated', low=0.0, high=1e6)
+    bridge_isolated: bool = spec(
+        True, 'over three frames or more, the points around isolated ones are also joined by '
+        'the edges a Delaunay triangulation without the isolated points has, so that '
+        'outlier tracks do not cut the ties between the points of a body')
     sigma_ceiling: float = spec(
         0.0, 'most noise level a model may claim, in units of the noise scale; 0 = none',
         low=0.0, high=1e6)

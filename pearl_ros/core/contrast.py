@@ -18,6 +18,8 @@ along the band.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from pearl_ros.core.config import SolverSettings
@@ -50,6 +52,21 @@ def patch_residuals(data: np.ndarray, edges: np.ndarray, neighbours: np.ndarray,
     """
     if edges.shape[0] == 0:
         return np.zeros(0)
+    return subspace_misses(data, local_subspaces(data, neighbours, settings), edges)
+
+
+@dataclass(frozen=True)
+class LocalSubspaces:
+    """Each point's local subspace (:func:`local_subspaces`): its patch's mean ``(N, 2F)`` and
+    orthonormal directions ``(N, <=3, 2F)`` (a direction without spread is zero)."""
+
+    mean: np.ndarray
+    basis: np.ndarray
+
+
+def local_subspaces(data: np.ndarray, neighbours: np.ndarray,
+                    settings: SolverSettings | None = None) -> LocalSubspaces:
+    """The local subspace of every point's patch, as :func:`patch_residuals` fits them."""
     settings = settings or SolverSettings()
     size, core_size, dim = settings.patch_size, settings.patch_core, settings.subspace_dim
     n = data.shape[0]
@@ -75,6 +92,16 @@ def patch_residuals(data: np.ndarray, edges: np.ndarray, neighbours: np.ndarray,
     basis = np.einsum('nkj,nkd->njd', top, centred)
     # A direction without spread (a patch of at most 3 points) spans nothing.
     basis /= np.where(lengths > 1e-12, lengths, np.inf)[:, :, None]  # (N, <=3, 2F)
+    return LocalSubspaces(mean, basis)
+
+
+def subspace_misses(data: np.ndarray, subspaces: LocalSubspaces, edges: np.ndarray
+                    ) -> np.ndarray:
+    """``(E,)`` pixels: for edge (p, q), the mean of q's distance from p's local subspace and
+    p's from q's (:func:`patch_residuals`)."""
+    if edges.shape[0] == 0:
+        return np.zeros(0)
+    mean, basis = subspaces.mean, subspaces.basis
 
     def miss(owner: np.ndarray, other: np.ndarray) -> np.ndarray:
         offset = data[other] - mean[owner]
@@ -114,7 +141,8 @@ def edge_weights(residuals: np.ndarray, scale: float, smoothness: float, separat
 
 
 def long_edge_stretch(tracks: np.ndarray, edges: np.ndarray, neighbours: np.ndarray,
-                      growth: float, settings: SolverSettings | None = None) -> np.ndarray:
+                      growth: float, settings: SolverSettings | None = None,
+                      measured: int | None = None) -> np.ndarray:
     """How much each edge's unit grows with its length, ``(E,)`` >= 1.
 
     A local subspace extrapolated far from its patch misses a point of the same body by more
@@ -137,6 +165,9 @@ def long_edge_stretch(tracks: np.ndarray, edges: np.ndarray, neighbours: np.ndar
     growth : float >= 1
     settings : SolverSettings, optional
         ``growth_from`` (6), ``coherence`` (2) and ``subspace_dim`` (3).
+    measured : int, optional
+        Only the first ``measured`` edges set the median length (the triangulation's own, not
+        the bridges added after them: :meth:`~pearl_ros.core.neighbourhood.Neighbourhood.bridges`).
 
     Returns
     -------
@@ -149,8 +180,8 @@ def long_edge_stretch(tracks: np.ndarray, edges: np.ndarray, neighbours: np.ndar
     tracks = np.asarray(tracks, dtype=np.float64)
     last = tracks[-1]
     lengths = np.linalg.norm(last[edges[:, 0]] - last[edges[:, 1]], axis=1)
-    reach = np.clip(lengths / (settings.growth_from * max(float(np.median(lengths)), 1e-12)),
-                    1.0, growth)
+    median = float(np.median(lengths[:measured])) if measured != 0 else 0.0
+    reach = np.clip(lengths / (settings.growth_from * max(median, 1e-12)), 1.0, growth)
     long = np.flatnonzero(reach > 1.0)
     if long.size == 0:
         return stretch

@@ -2,13 +2,17 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.spatial import Delaunay, QhullError, cKDTree
 
 from pearl_ros.core.config import SolverSettings
-from pearl_ros.core.contrast import patch_residuals
+from pearl_ros.core.contrast import (
+    LocalSubspaces,
+    local_subspaces,
+    subspace_misses,
+)
 from pearl_ros.core.errors import InputError
 from pearl_ros.core.models import get_model
 
@@ -24,12 +28,15 @@ class Neighbourhood:
     misses : (E,) float64, pixels, how far each edge's ends miss each other's local subspace
         over every frame (:func:`pearl_ros.core.contrast.patch_residuals`)
     ids : (N,) int64 or None, the points' identities, which let a later call reuse the edges
+    subspaces : LocalSubspaces or None, the local subspaces the misses were measured against
+        (kept for :meth:`bridges`; None: fitted again when needed)
     """
 
     edges: np.ndarray
     neighbours: np.ndarray
     misses: np.ndarray
     ids: np.ndarray | None = None
+    subspaces: LocalSubspaces | None = field(default=None, repr=False, compare=False)
 
     def check(self, num_points: int) -> None:
         """Raise InputError unless this neighbourhood is one of ``num_points`` points."""
@@ -39,6 +46,27 @@ class Neighbourhood:
         if self.misses.shape != (self.edges.shape[0],) or (
                 self.edges.size and not 0 <= self.edges.min() <= self.edges.max() < num_points):
             raise InputError('neighbourhood edges and misses do not match')
+
+    def bridges(self, tracks: np.ndarray, isolated: np.ndarray,
+                settings: SolverSettings | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """The edges that join the points around ``isolated`` ones: those of a Delaunay
+        triangulation of the other points that this one lacks ``(B, 2)`` (i < j), and their
+        misses ``(B,)`` over ``tracks`` (F, N, 2), the tracks this neighbourhood was built on.
+
+        An isolated point (a gross outlier, most often) sits between points that its own edges
+        would otherwise have joined; with these edges they are tied to each other across it.
+        """
+        tracks = np.asarray(tracks, dtype=np.float64)
+        n = self.neighbours.shape[0]
+        others = np.flatnonzero(~np.asarray(isolated, dtype=bool))
+        if others.size < 3 or others.size == n:
+            return np.empty((0, 2), dtype=np.int64), np.zeros(0)
+        extra = others[delaunay_edges(tracks[-1][others])]  # others ascend: i < j holds
+        new = ~np.isin(extra[:, 0] * n + extra[:, 1], self.edges[:, 0] * n + self.edges[:, 1])
+        extra = extra[new]
+        data = get_model('affine').data(tracks)
+        subspaces = self.subspaces or local_subspaces(data, self.neighbours, settings)
+        return extra, subspace_misses(data, subspaces, extra)
 
     def nearest_miss(self) -> np.ndarray:
         """Each point's least miss over its edges ``(N,)``, pixels (inf for a point with none):
@@ -77,8 +105,9 @@ def neighbourhood(tracks: np.ndarray, ids: np.ndarray | None = None,
         anchor = tracks[-1]
         edges = delaunay_edges(anchor)
         neighbours = nearest_neighbours(anchor, settings.image_neighbours)
-    return Neighbourhood(edges, neighbours,
-                         patch_residuals(trajectories, edges, neighbours, settings), ids)
+    subspaces = local_subspaces(trajectories, neighbours, settings)
+    return Neighbourhood(edges, neighbours, subspace_misses(trajectories, subspaces, edges), ids,
+                         subspaces)
 
 
 def delaunay_edges(points: np.ndarray) -> np.ndarray:

@@ -40,6 +40,11 @@ from pearl_ros.core.scale import local_scale
 _T = TypeVar('_T')
 
 OUTLIER_ROW = 0  # the row of the cost table (the optimiser's label) of the outlier label
+# Fewest frames whose isolated points are bridged (SolverSettings.bridge_isolated). Over two
+# frames a local subspace is one constraint in R^4: the points of a sparse moving body are
+# often isolated there, and bridges drawn across them tie the bodies around it together
+# (Hopkins155 two frames 5.94 -> 6.42%, docs/experiments.md).
+BRIDGE_FRAMES = 3
 # The quantile of the points' least pair misses that isolation is measured in: low, so that it
 # is a true point's even where most points are mismatches (AdelaideRMF's `game`, 73%, where the
 # lower quartile was a mismatch's). The misses themselves need true neighbours: on synthetic
@@ -709,18 +714,26 @@ def _setting(tracks: np.ndarray, config: PearlConfig, rng: np.random.Generator,
     outlier_cost = _outlier_cost(config.outlier_threshold, scale, dof, floor)
     costs = np.full(n, outlier_cost)
     counted = None
+    misses, measured = graph.misses, edges.shape[0]
     if suspect is not None:
         isolated = suspect & (nearest > solver.isolation_floor * scale)
         span = float(np.ptp(tracks.reshape(-1, 2), axis=0).max())
         uniform = dof * (2.0 * math.log(max(span, floor) / floor) - math.log(2.0 * math.pi))
         costs[isolated] = min(outlier_cost, max(uniform, 0.0))
         kept = ~(isolated[edges[:, 0]] | isolated[edges[:, 1]])
+        if solver.bridge_isolated and tracks.shape[0] >= BRIDGE_FRAMES and isolated.any():
+            bridges, bridge_misses = graph.bridges(tracks, isolated, solver)
+            edges = np.concatenate([edges, bridges])
+            misses = np.concatenate([misses, bridge_misses])
+            # The unit stays that of the triangulation's own edges: bridges are longer.
+            kept = np.concatenate([kept, np.zeros(bridges.shape[0], dtype=bool)])
         if np.any(kept):
             counted = kept
-    stretch = long_edge_stretch(tracks, edges, neighbours, config.long_edge_growth, solver)
+    stretch = long_edge_stretch(tracks, edges, neighbours, config.long_edge_growth, solver,
+                                measured)
     return _Setting(
         model=model, solver=solver, data=data, edges=edges,
-        weights=edge_weights(graph.misses, scale, config.smoothness, config.separation,
+        weights=edge_weights(misses, scale, config.smoothness, config.separation,
                              config.contrast, config.unit_quantile, stretch,
                              counted),
         neighbours=neighbours, scale=scale, floor=floor, ceiling=ceiling, dof=dof,

@@ -1,4 +1,5 @@
-"""Outliers on their own: isolated points and the pairs an outlier keeps apart.
+"""Outliers on their own: isolated points, the bridges around them, and the pairs an outlier
+keeps apart.
 
 ``SolverSettings.isolation`` gives a point that moves unlike every neighbour the outlier cost of
 a uniform density over the image; ``SolverSettings.outlier_apart`` lets an outlier earn the
@@ -12,13 +13,18 @@ import math
 
 import numpy as np
 import pytest
+from scipy.spatial import Delaunay
 
 from pearl_ros.core import pearl
 from pearl_ros.core.config import PearlConfig, SolverSettings
+from pearl_ros.core.contrast import patch_residuals
 from pearl_ros.core.energy import Problem, energy
 from pearl_ros.core.labels import OUTLIER
 from pearl_ros.core.metrics import misclassification
+from pearl_ros.core.models import get_model
 from pearl_ros.core.neighbourhood import neighbourhood
+from pearl_ros.datasets.hopkins import load_sequence, sequence_names
+from pearl_ros.datasets.outliers import add_outlier_tracks
 
 
 def test_an_outlier_earns_the_reward_of_a_pair_that_moves_apart_whatever_its_neighbour():
@@ -103,3 +109,84 @@ def test_the_online_scale_given_the_graph_is_the_scale_fit_reads(affine_scene):
     assert pearl.noise_scale(tracks, config, 0, graph) == setting.scale
     assert pearl.noise_scale(tracks, config, 0) > setting.scale
 
+
+
+def _delaunay_pairs(points: np.ndarray) -> set[tuple[int, int]]:
+    """Every pair of points that share a Delaunay triangle (scipy, read from the simplices)."""
+    pairs = set()
+    for a, b, c in Delaunay(points).simplices.tolist():
+        for i, j in ((a, b), (b, c), (a, c)):
+            pairs.add((min(i, j), max(i, j)))
+    return pairs
+
+
+def _walk_scene(affine_scene, seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """Two rigid bodies over 10 frames with 20% random-walk outlier tracks of 10 px steps
+    (truth -1): about half of the walks are isolated."""
+    tracks, truth = affine_scene(sizes=(90, 70), frames=10, noise=0.3, seed=seed)
+    return add_outlier_tracks(tracks, truth, 0.2, rng=seed, step=10.0)
+
+
+def test_bridges_are_the_new_edges_of_a_triangulation_without_the_isolated_points(affine_scene):
+    tracks, _ = _walk_scene(affine_scene, seed=1)
+    graph = neighbourhood(tracks)
+    isolated = np.random.default_rng(2).random(tracks.shape[1]) < 0.25
+    bridges, misses = graph.bridges(tracks, isolated)
+
+    others = np.flatnonzero(~isolated)
+    expected = {(int(others[i]), int(others[j])) for i, j in _delaunay_pairs(tracks[-1][others])}
+    expected -= {tuple(edge) for edge in graph.edges.tolist()}
+    assert expected and {tuple(edge) for edge in bridges.tolist()} == expected
+    assert not isolated[bridges].any()
+    np.testing.assert_allclose(misses, patch_residuals(get_model('affine').data(tracks), bridges,
+                                                       graph.neighbours))
+    # None isolated, or all: nothing to bridge.
+    assert graph.bridges(tracks, np.zeros(tracks.shape[1], bool))[0].shape == (0, 2)
+    assert graph.bridges(tracks, np.ones(tracks.shape[1], bool))[0].shape == (0, 2)
+
+
+def test_bridges_join_the_points_around_outlier_walks_and_leave_the_other_ties_as_they_were(
+        affine_scene):
+    tracks, truth = _walk_scene(affine_scene, seed=3)
+    rng = np.random.default_rng(0)
+    bridged = pearl._setting(tracks, PearlConfig(), rng)
+    plain = pearl._setting(tracks, PearlConfig(solver=SolverSettings(bridge_isolated=False)),
+                           np.random.default_rng(0))
+    walks = truth == OUTLIER
+    isolated = bridged.outlier_cost < bridged.outlier_cost.max()
+    assert np.mean(isolated[walks]) > 0.3 and not isolated[~walks].any()
+    count = plain.edges.shape[0]
+    np.testing.assert_array_equal(bridged.edges[:count], plain.edges)
+    assert bridged.edges.shape[0] > count
+    # Bridges join points that are not isolated; those between true points join mostly points
+    # of one body, and tie them. The triangulation's own edges keep their weights (the unit
+    # and the long-edge median are read over those alone).
+    added = bridged.edges[count:]
+    assert not isolated[added].any()
+    true_pairs = ~walks[added].any(axis=1)
+    same = true_pairs & (truth[added[:, 0]] == truth[added[:, 1]])
+    assert same.sum() > 0.8 * true_pairs.sum() > 0
+    np.testing.assert_allclose(bridged.weights[:count], plain.weights)
+    assert np.mean(bridged.weights[count:][same] > 0) > 0.9  # ties, not rewards
+    # Over two frames nothing is bridged: a local subspace there isolates true points too.
+    two = tracks[[0, -1]]
+    config = PearlConfig(model='fundamental')
+    assert (pearl._setting(two, config, np.random.default_rng(0)).edges.shape
+            == neighbourhood(two, settings=config.solver).edges.shape)
+
+
+def test_bridging_lowers_the_error_of_true_points_among_outlier_walks_on_hopkins155(
+        hopkins_root):
+    # Real data with ground truth: every fifth sequence, 20% random-walk outlier tracks (the
+    # robot-data benchmark's set), true points scored on their own.
+    names = sequence_names(hopkins_root)[::5]
+    errors: dict[bool, list[float]] = {True: [], False: []}
+    for index, name in enumerate(names):
+        sequence = load_sequence(hopkins_root, name)
+        tracks, truth = add_outlier_tracks(sequence.tracks, sequence.labels, 0.2, rng=index)
+        true_points = truth != OUTLIER
+        for bridge in (True, False):
+            config = PearlConfig(solver=SolverSettings(bridge_isolated=bridge))
+            labels = pearl.fit(tracks, config, rng=index).labels
+            errors[bridge].append(misclassification(labels[true_points], truth[true_points]))
+    assert np.mean(errors[True]) < np.mean(errors[False]) - 0.005
