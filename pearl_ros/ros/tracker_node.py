@@ -42,15 +42,14 @@ from typing import Any
 
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray
-from geometry_msgs.msg import Point32
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import QoSProfile, ReliabilityPolicy
-from sensor_msgs.msg import CameraInfo, ChannelFloat32, Image, PointCloud
+from sensor_msgs.msg import CameraInfo, Image, PointCloud
 from std_msgs.msg import Header
 
-from pearl_ros.bagio import decode, encode
+from pearl_ros.bagio import cdr, decode
 from pearl_ros.core.config import ParameterSpec, check_fields, check_value, parameter_specs, spec
 from pearl_ros.core.errors import InputError, one_line
 from pearl_ros.online.config import unknown_parameter
@@ -114,8 +113,10 @@ def build_configs(values: Mapping[str, Any]) -> tuple[TrackerConfig, TrackerNode
     return tracker, node
 
 
-def features_message(header: Header, tracks: Tracks) -> PointCloud:
-    """The VINS-Mono ``PointCloud`` of one frame's tracks (module docstring for the layout).
+def features_message(header: Header, tracks: Tracks) -> cdr.PointCloud:
+    """The VINS-Mono ``PointCloud`` of one frame's tracks (module docstring for the layout), as a
+    :mod:`~pearl_ros.bagio.cdr` message: arrays, published as its bytes
+    (:func:`~pearl_ros.bagio.cdr.serialize`), with no Python object per feature.
 
     Ids are published modulo :data:`ID_MODULUS`: a float32 channel holds integers exactly only
     up to 2^24, which a tracker detecting ~1000 corners a second passes in about five hours. An
@@ -127,10 +128,11 @@ def features_message(header: Header, tracks: Tracks) -> PointCloud:
         points, velocity = tracks.uv, tracks.velocity
     columns = (tracks.ids % ID_MODULUS, tracks.uv[:, 0], tracks.uv[:, 1], velocity[:, 0],
                velocity[:, 1])
-    return PointCloud(
+    xyz = np.column_stack((points, np.ones(len(points)))).astype(np.float32)
+    return cdr.PointCloud(
         header=header,
-        points=[Point32(x=x, y=y, z=1.0) for x, y in points.tolist()],
-        channels=[ChannelFloat32(name=name, values=encode.array_float32(np.asarray(values)))
+        points=xyz.reshape(-1, 3),
+        channels=[cdr.ChannelFloat32(name, np.asarray(values, dtype=np.float32))
                   for name, values in zip(CHANNELS, columns, strict=True)],
     )
 
@@ -255,7 +257,7 @@ class TrackerNode(Node):
             return
         stats.period_track_s.append(time.perf_counter() - start)
         try:
-            self._features_pub.publish(out)
+            self._features_pub.publish(cdr.serialize(out))
         except Exception:
             if self.context.ok():
                 raise

@@ -14,9 +14,10 @@ from diagnostic_msgs.msg import DiagnosticArray
 from rcl_interfaces.msg import Log
 from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.serialization import deserialize_message
 from sensor_msgs.msg import Image, PointCloud, PointCloud2
 
-from pearl_ros.bagio import decode
+from pearl_ros.bagio import cdr, decode
 from pearl_ros.core.errors import InputError
 from pearl_ros.ros.node import PearlNode, StampMatcher
 from pearl_ros.ros.tracker_node import TrackerNode, features_message
@@ -45,7 +46,8 @@ def image_msg(k: int, encoding: str = 'mono8') -> Image:
 def offline_features(k_last: int) -> list[PointCloud]:
     """The tracker's messages for frames 0..k_last, tracked here (no node)."""
     tracker = FeatureTracker(TrackerConfig(max_features=MAX_FEATURES))
-    return [features_message(header(STAMPS[k]), tracker.track(SCENE.frames[k], STAMPS[k]))
+    return [deserialize_message(cdr.serialize(features_message(
+                header(STAMPS[k]), tracker.track(SCENE.frames[k], STAMPS[k]))), PointCloud)
             for k in range(k_last + 1)]
 
 

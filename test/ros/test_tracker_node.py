@@ -17,9 +17,10 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from rcl_interfaces.msg import Log
 from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.serialization import deserialize_message
 from sensor_msgs.msg import CameraInfo, Image, PointCloud, PointCloud2
 
-from pearl_ros.bagio import decode
+from pearl_ros.bagio import cdr, decode
 from pearl_ros.core.config import parameter_specs
 from pearl_ros.core.errors import InputError
 from pearl_ros.ros.node import PearlNode
@@ -375,6 +376,7 @@ def test_ids_wrap_at_2_to_the_24_where_float32_stops_being_exact() -> None:
     ids = np.array([5, 2**24 - 1, 2**24, 2**24 + 7, 3 * 2**24 + 1])
     uv = np.arange(10.0).reshape(5, 2)
     tracks = Tracks(ids, uv, None, np.zeros((5, 2)), None, np.ones(5, np.int64))
-    got = columns(features_message(header(0), tracks))
+    got = columns(deserialize_message(cdr.serialize(features_message(header(0), tracks)),
+                                      PointCloud))
     np.testing.assert_array_equal(got['id_of_point'], [5, 2**24 - 1, 0, 7, 1])
     np.testing.assert_array_equal(got['points'][:, :2], uv)
