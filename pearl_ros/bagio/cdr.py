@@ -21,11 +21,13 @@ Every malformed record raises :class:`~pearl_ros.core.errors.InputError` with a 
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
+from pearl_ros.bagio.decode import point_array
 from pearl_ros.bagio.encode import MessageTypes
 from pearl_ros.core.errors import InputError
 
@@ -96,21 +98,13 @@ class PointCloud2:
     is_dense: bool = False
 
 
-def _points(points: Any) -> np.ndarray:
-    """(N, 3) float32 of a PointCloud's points: an array, or ``Point32`` objects (a ROS 1
-    bag's PointCloud, deserialised by rosbags)."""
-    if isinstance(points, np.ndarray):
-        return np.ascontiguousarray(points, dtype=np.float32).reshape(-1, 3)
-    return np.array([(p.x, p.y, p.z) for p in points], dtype=np.float32).reshape(-1, 3)
-
-
 # The classes the encoders build messages with: serialise those with :func:`serialize`.
 TYPES = MessageTypes(
     PointCloud2=PointCloud2,
     PointField=PointField,
     PointCloud=PointCloud,
     ChannelFloat32=ChannelFloat32,
-    select_points=lambda points, index: _points(points)[index],
+    select_points=lambda points, index: point_array(points)[index],
 )
 
 
@@ -214,7 +208,8 @@ def read_pointcloud2(raw: bytes | memoryview | np.ndarray) -> PointCloud2:
                        is_dense)
 
 
-READERS = {POINTCLOUD: read_pointcloud, POINTCLOUD2: read_pointcloud2}
+READERS: dict[str, Callable[[bytes | memoryview | np.ndarray], PointCloud | PointCloud2]] = {
+    POINTCLOUD: read_pointcloud, POINTCLOUD2: read_pointcloud2}
 
 
 def read(raw: bytes | memoryview | np.ndarray, msgtype: str) -> PointCloud | PointCloud2:
@@ -227,8 +222,7 @@ def read(raw: bytes | memoryview | np.ndarray, msgtype: str) -> PointCloud | Poi
     """
     if msgtype not in READERS:
         raise InputError(f'{msgtype} is not a feature message type {tuple(READERS)}')
-    reader: Any = READERS[msgtype]
-    return reader(raw)  # type: ignore[no-any-return]
+    return READERS[msgtype](raw)
 
 
 def stamp_ns(raw: bytes | memoryview | np.ndarray) -> int:
@@ -287,7 +281,7 @@ def serialize(msg: Any) -> bytes:
     out = _Writer()
     out.header(msg.header)
     if hasattr(msg, 'channels'):
-        out.array('f4', _points(msg.points))
+        out.array('f4', point_array(msg.points))
         out.scalar('u4', len(msg.channels))
         for channel in msg.channels:
             out.string(channel.name)

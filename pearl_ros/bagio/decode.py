@@ -122,7 +122,7 @@ def decode_pointcloud(
             uv = np.column_stack((by_name[_VINS_MONO_U], by_name[_VINS_MONO_V]))
         elif not has_u and not has_v:
             # Oldest front ends send ids only: fall back to the normalised coordinates.
-            uv = point_xy(msg.points)
+            uv = point_array(msg.points)[:, :2].astype(np.float64)
         else:
             raise InputError(
                 f'PointCloud has only one of {_VINS_MONO_U!r}, {_VINS_MONO_V!r}; channels: {names}'
@@ -141,12 +141,12 @@ def decode_pointcloud(
     return ids_int, uv
 
 
-def point_xy(points: Any) -> np.ndarray:
-    """(N, 2) float64 ``x, y`` of a PointCloud's points: ``Point32`` objects, or an (N, 3)
-    array (:mod:`~pearl_ros.bagio.cdr`)."""
+def point_array(points: Any) -> np.ndarray:
+    """(N, 3) float32 ``x, y, z`` of a PointCloud's points: ``Point32`` objects (rclpy, rosbags),
+    or an (N, 3) array already (:mod:`~pearl_ros.bagio.cdr`)."""
     if isinstance(points, np.ndarray):
-        return points[:, :2].astype(np.float64)
-    return np.array([(p.x, p.y) for p in points], dtype=np.float64).reshape(-1, 2)
+        return np.ascontiguousarray(points, dtype=np.float32).reshape(-1, 3)
+    return np.array([(p.x, p.y, p.z) for p in points], dtype=np.float32).reshape(-1, 3)
 
 
 def channels(msg: Any, dtype: Any) -> tuple[list[str], list[np.ndarray]]:

@@ -165,7 +165,7 @@ def long_edge_stretch(tracks: np.ndarray, edges: np.ndarray, neighbours: np.ndar
     growth : float >= 1
     settings : SolverSettings, optional
         ``growth_from`` (6), ``coherence`` (2) and ``subspace_dim`` (3).
-    measured : int, optional
+    measured : int >= 1, optional
         Only the first ``measured`` edges set the median length (the triangulation's own, not
         the bridges added after them: :meth:`~pearl_ros.core.neighbourhood.Neighbourhood.bridges`).
 
@@ -180,7 +180,7 @@ def long_edge_stretch(tracks: np.ndarray, edges: np.ndarray, neighbours: np.ndar
     tracks = np.asarray(tracks, dtype=np.float64)
     last = tracks[-1]
     lengths = np.linalg.norm(last[edges[:, 0]] - last[edges[:, 1]], axis=1)
-    median = float(np.median(lengths[:measured])) if measured != 0 else 0.0
+    median = float(np.median(lengths[:measured]))
     reach = np.clip(lengths / (settings.growth_from * max(median, 1e-12)), 1.0, growth)
     long = np.flatnonzero(reach > 1.0)
     if long.size == 0:
