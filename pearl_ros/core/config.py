@@ -11,6 +11,7 @@ validates it here and the front ends describe it from the same source (:func:`pa
 from __future__ import annotations
 
 from dataclasses import dataclass, field, fields
+from functools import cache
 from typing import Any
 
 from pearl_ros.core.errors import InputError
@@ -135,6 +136,19 @@ class SolverSettings:
     isolation_floor: float = spec(
         5.0, 'noise scales: a point whose most alike neighbour misses it by less is never '
         'isolated', low=0.0, high=1e6)
+    persist_deviations: float = spec(
+        8.0, 'streaming: a track whose isolation (its least neighbour miss over the 10% '
+        'quantile of such misses), averaged in log over its last window of frames, lies this '
+        'many robust '
+        'deviations (1.4826 median absolute deviations) above the median track is suspected '
+        'isolated as the isolation test suspects a point; 0 = off', low=0.0, high=1e6)
+    persist_frames: int = spec(
+        5, 'streaming: frames of isolation a track needs before it can be suspected on them',
+        low=1, high=1000000)
+    persist_least: float = spec(
+        3.0, 'streaming: least mean isolation (times the 10% quantile) of a track suspected '
+        'on its past frames, so that no track is suspected where every track moves alike',
+        low=1.0, high=1e6)
     bridge_isolated: bool = spec(
         True, 'over three frames or more, the points around isolated ones are also joined by '
         'the edges a Delaunay triangulation without the isolated points has, so that '
@@ -224,6 +238,13 @@ class SolverSettings:
         if self.split_share_min > self.split_share_max:
             raise InputError(f'split_share_min must be <= split_share_max '
                              f'({self.split_share_max}), got {self.split_share_min!r}')
+
+
+@cache
+def default_solver() -> SolverSettings:
+    """The default :class:`SolverSettings`, built and checked once (it is frozen): code that
+    runs every frame takes it where it is given none."""
+    return SolverSettings()
 
 
 @dataclass(frozen=True)

@@ -22,7 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pearl_ros.core.config import SolverSettings
+from pearl_ros.core.config import SolverSettings, default_solver
 
 
 def patch_residuals(data: np.ndarray, edges: np.ndarray, neighbours: np.ndarray,
@@ -67,7 +67,7 @@ class LocalSubspaces:
 def local_subspaces(data: np.ndarray, neighbours: np.ndarray,
                     settings: SolverSettings | None = None) -> LocalSubspaces:
     """The local subspace of every point's patch, as :func:`patch_residuals` fits them."""
-    settings = settings or SolverSettings()
+    settings = settings or default_solver()
     size, core_size, dim = settings.patch_size, settings.patch_core, settings.subspace_dim
     n = data.shape[0]
     rows = data.reshape(n, -1, 2)
@@ -176,7 +176,7 @@ def long_edge_stretch(tracks: np.ndarray, edges: np.ndarray, neighbours: np.ndar
     stretch = np.ones(edges.shape[0])
     if growth <= 1.0 or edges.shape[0] == 0:
         return stretch
-    settings = settings or SolverSettings()
+    settings = settings or default_solver()
     tracks = np.asarray(tracks, dtype=np.float64)
     last = tracks[-1]
     lengths = np.linalg.norm(last[edges[:, 0]] - last[edges[:, 1]], axis=1)

@@ -7,7 +7,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.spatial import Delaunay, QhullError, cKDTree
 
-from pearl_ros.core.config import SolverSettings
+from pearl_ros.core.config import SolverSettings, default_solver
 from pearl_ros.core.contrast import (
     LocalSubspaces,
     local_subspaces,
@@ -91,7 +91,7 @@ def neighbourhood(tracks: np.ndarray, ids: np.ndarray | None = None,
     reusing misses a frame or two old cost the Hopkins155 stream half a point of error
     (BENCHMARKS.md), and they are the larger part of the cost.
     """
-    settings = settings or SolverSettings()
+    settings = settings or default_solver()
     tracks = np.asarray(tracks, dtype=np.float64)
     trajectories = get_model('affine').data(tracks)  # validates tracks
     if ids is not None:

@@ -26,7 +26,7 @@ from typing import TypeVar
 
 import numpy as np
 
-from pearl_ros.core.config import PearlConfig, SolverSettings
+from pearl_ros.core.config import PearlConfig, SolverSettings, default_solver
 from pearl_ros.core.contrast import edge_weights, long_edge_stretch
 from pearl_ros.core.energy import Problem, energy
 from pearl_ros.core.errors import InputError
@@ -131,7 +131,7 @@ def sweep(problem: Problem, labels: np.ndarray, settings: SolverSettings | None 
     use when it started, once each (the first pass's first moves), unless every point is
     still an outlier.
     """
-    return _run(_sweep_moves(problem, labels, settings or SolverSettings(), deadline))
+    return _run(_sweep_moves(problem, labels, settings or default_solver(), deadline))
 
 
 def _sweep_moves(problem: Problem, labels: np.ndarray, settings: SolverSettings,
@@ -361,6 +361,7 @@ def fit(
     init_cost: float = 0.0,
     propose: bool = True,
     graph: Neighbourhood | None = None,
+    suspects: np.ndarray | None = None,
 ) -> PearlResult:
     """Segment tracked points into rigid motions; the number of motions is found, not given.
 
@@ -390,13 +391,17 @@ def fit(
     graph : Neighbourhood, optional
         The neighbour systems of ``tracks`` (:func:`pearl_ros.core.neighbourhood.neighbourhood`),
         when the caller already has them; built from ``tracks`` otherwise.
+    suspects : (N,) bool, optional
+        Points the caller suspects isolated, besides those the isolation test finds
+        (``SolverSettings.isolation``; the online segmenter judges tracks over their past
+        frames). Ignored when the test is off.
 
     Returns
     -------
     PearlResult
     """
     return _run(_steps(tracks, config or PearlConfig(), np.random.default_rng(rng), init,
-                       deadline, init_cost, propose, graph))
+                       deadline, init_cost, propose, graph, suspects))
 
 
 def _run(steps: Generator[object, None, _T]) -> _T:
@@ -444,7 +449,7 @@ class SlicedFit:
                  rng: np.random.Generator | int | None = None,
                  graph: Neighbourhood | None = None, deadline: float | None = None) -> None:
         self._steps = _steps(tracks, config or PearlConfig(), np.random.default_rng(rng), None,
-                             deadline, 0.0, True, graph)
+                             deadline, 0.0, True, graph, None)
         self.result: PearlResult | None = None
         self.steps_run = 0
         self._search: _Search | None = None
@@ -481,12 +486,13 @@ class SlicedFit:
 
 def _steps(tracks: np.ndarray, config: PearlConfig, rng: np.random.Generator,
            init: np.ndarray | None, deadline: float | None, init_cost: float, propose: bool,
-           graph: Neighbourhood | None) -> Generator[_Search | None, None, PearlResult]:
+           graph: Neighbourhood | None, suspects: np.ndarray | None = None
+           ) -> Generator[_Search | None, None, PearlResult]:
     """:func:`fit`'s steps: yields the search once set up, then None before each step
     (:class:`SlicedFit`); returns the result."""
     timings = {'setup': 0.0, 'propose': 0.0, 'expand': 0.0, 'refit': 0.0}
     with _timed(timings, 'setup'):
-        setting = _setting(tracks, config, rng, graph)
+        setting = _setting(tracks, config, rng, graph, suspects)
     if not init_cost >= 0:
         raise InputError(f'init_cost must be >= 0, got {init_cost!r}')
     search = _start(setting, init, init_cost)
@@ -690,7 +696,7 @@ def _outlier_cost(threshold: float, scale: float, dof: float, floor: float) -> f
 
 
 def _setting(tracks: np.ndarray, config: PearlConfig, rng: np.random.Generator,
-             graph: Neighbourhood | None = None) -> _Setting:
+             graph: Neighbourhood | None = None, also: np.ndarray | None = None) -> _Setting:
     solver = config.solver
     model = get_model(config.model, solver)
     data = model.data(tracks)  # validates tracks
@@ -705,7 +711,7 @@ def _setting(tracks: np.ndarray, config: PearlConfig, rng: np.random.Generator,
         graph.check(n)
     edges, neighbours = graph.edges, graph.neighbours
     nearest = graph.nearest_miss()
-    suspect = _suspects(nearest, solver.isolation)
+    suspect = _suspects(nearest, solver.isolation, also)
     scale = config.noise or _estimate_scale(model, data, neighbours, config, rng, suspect,
                                             tracks[-1])
     dof = model.residual_dof(data)
@@ -743,13 +749,15 @@ def _setting(tracks: np.ndarray, config: PearlConfig, rng: np.random.Generator,
 
 def noise_scale(tracks: np.ndarray, config: PearlConfig | None = None,
                 rng: np.random.Generator | int | None = None,
-                graph: Neighbourhood | None = None) -> float:
+                graph: Neighbourhood | None = None,
+                suspects: np.ndarray | None = None) -> float:
     """The noise scale (px) :func:`fit` estimates when ``config.noise`` is 0.
 
     Callers that fit similar data again and again (the online segmenter) estimate it once and
     pass it on as ``config.noise``, saving the setup cost of every fit. With the ``graph`` of
     ``tracks`` that :func:`fit` is given, the points it finds isolated
-    (``SolverSettings.isolation``) are left out as they are in :func:`fit`.
+    (``SolverSettings.isolation``, and the ``suspects`` it is given) are left out as they are
+    in :func:`fit`.
     """
     config = config or PearlConfig()
     model = get_model(config.model, config.solver)
@@ -758,22 +766,45 @@ def noise_scale(tracks: np.ndarray, config: PearlConfig | None = None,
     neighbours, suspect = nearest_neighbours(anchor, config.solver.image_neighbours), None
     if graph is not None:
         graph.check(data.shape[0])
-        suspect = _suspects(graph.nearest_miss(), config.solver.isolation)
+        suspect = _suspects(graph.nearest_miss(), config.solver.isolation, suspects)
     return _estimate_scale(model, data, neighbours, config, np.random.default_rng(rng),
                            suspect, anchor)
 
 
-def _suspects(nearest: np.ndarray, isolation: float) -> np.ndarray | None:
-    """Points ``(N,)`` bool whose most alike neighbour misses them by more than ``isolation``
-    times the ``CORE_QUANTILE`` quantile of such misses, from each point's least miss
-    ``nearest`` (:meth:`Neighbourhood.nearest_miss`); None when ``isolation`` is 0 or no point
-    has a neighbour."""
+def isolation_ratios(nearest: np.ndarray) -> np.ndarray | None:
+    """Each point's least miss ``nearest`` (:meth:`Neighbourhood.nearest_miss`) over the
+    ``CORE_QUANTILE`` quantile of those misses ``(N,)`` (inf for a point with no neighbour, or
+    where the quantile is 0); None when no point has a neighbour."""
     finite = nearest[np.isfinite(nearest)]
-    if not isolation or not finite.size:
+    if not finite.size:
         return None
     core = float(np.quantile(finite, CORE_QUANTILE))
-    suspect: np.ndarray = nearest > isolation * core
+    with np.errstate(divide='ignore', invalid='ignore'):
+        ratios: np.ndarray = np.where(nearest > 0, nearest / core, 0.0)
+    return ratios
+
+
+def _suspects(nearest: np.ndarray, isolation: float, also: np.ndarray | None = None
+              ) -> np.ndarray | None:
+    """Points ``(N,)`` bool whose most alike neighbour misses them by more than ``isolation``
+    times the ``CORE_QUANTILE`` quantile of such misses (:func:`isolation_ratios`), or that
+    ``also`` marks (a caller's suspects, judged over earlier frames); None when ``isolation`` is
+    0 or no point has a neighbour."""
+    ratios = isolation_ratios(nearest) if isolation else None
+    if ratios is None:
+        return None
+    suspect: np.ndarray = ratios > isolation
+    if also is not None:
+        suspect |= _check_suspects(also, nearest.size)
     return suspect
+
+
+def _check_suspects(suspects: np.ndarray, n: int) -> np.ndarray:
+    suspects = np.asarray(suspects)
+    if suspects.shape != (n,) or suspects.dtype != bool:
+        raise InputError(f'suspects must be a ({n},) bool array, got {suspects.dtype} '
+                         f'{suspects.shape}')
+    return suspects
 
 
 def _estimate_scale(model: MotionModel, data: np.ndarray, neighbours: np.ndarray,

@@ -28,13 +28,21 @@ import numpy as np
 from scipy.optimize import linear_sum_assignment
 from scipy.spatial import cKDTree
 
-from pearl_ros.core.config import PearlConfig, SolverSettings
+from pearl_ros.core.config import PearlConfig, SolverSettings, default_solver
 from pearl_ros.core.errors import InputError
 from pearl_ros.core.labels import OUTLIER, num_motions
 from pearl_ros.core.models import get_model
 from pearl_ros.core.neighbourhood import Neighbourhood, neighbourhood
-from pearl_ros.core.pearl import PearlResult, SlicedFit, assign, fit, noise_scale
+from pearl_ros.core.pearl import (
+    PearlResult,
+    SlicedFit,
+    assign,
+    fit,
+    isolation_ratios,
+    noise_scale,
+)
 from pearl_ros.online.config import OnlineConfig
+from pearl_ros.online.isolation import LEAST_SPAN, IsolationHistory, persistent_suspects
 from pearl_ros.online.window import SlidingWindow, lookup
 
 _TWO_VIEW = ('fundamental', 'homography')
@@ -103,6 +111,8 @@ class OnlineSegmenter:
         self._energy_ref = 0.0  # energy per feature of that fit
         self._graph: tuple[str, Neighbourhood] | None = None  # model, last fit's neighbourhood
         self._cold: _ColdStart | None = None  # a budgeted cold start under way
+        # Each track's isolation over its last window of fits (online/isolation.py).
+        self._isolation = IsolationHistory(self.online.window)
 
     @property
     def frames_in_window(self) -> int:
@@ -116,6 +126,7 @@ class OnlineSegmenter:
         self._quiet = 0
         self._graph = None
         self._cold = None
+        self._isolation.clear()
 
     def reconfigure(self, config: PearlConfig | None = None,
                     online: OnlineConfig | None = None) -> None:
@@ -127,6 +138,8 @@ class OnlineSegmenter:
         self._cold = None  # a cold start under way is begun again with the new parameters
         if online is not None:
             self._window.resize(online.window)
+            if online.window != self._isolation.frames:
+                self._isolation = IsolationHistory(online.window)
             if online.seed != self.online.seed:
                 self._rng = np.random.default_rng(online.seed)
             self.online = online
@@ -230,7 +243,7 @@ class OnlineSegmenter:
         once it is done, the next frame starts warm from its labels."""
         budget = self.online.budget_ms / 1e3
         if self._cold is None:
-            graph, noise = self._neighbourhood(tracks, fitted_keys, model_name, None)
+            graph, noise, _ = self._neighbourhood(tracks, fitted_keys, model_name, None)
             config = self._config(model_name, noise, 'cold')
             order = np.argsort(fitted_keys, kind='stable')
             self._cold = _ColdStart(
@@ -272,7 +285,7 @@ class OnlineSegmenter:
         previous = None
         if not propose and self._graph is not None and self._graph[0] == model_name:
             previous = self._graph[1]
-        graph, noise = self._neighbourhood(tracks, keys, model_name, previous)
+        graph, noise, suspects = self._neighbourhood(tracks, keys, model_name, previous)
         init = None
         budget = self.online.budget_ms
         deadline = start + budget / 1e3 if budget > 0 else None
@@ -288,7 +301,7 @@ class OnlineSegmenter:
             config = self._config(model_name, noise, 'cold')
         result = fit(tracks, config, self._rng, init=init, deadline=deadline,
                      init_cost=self.online.temporal_cost if warm else 0.0, propose=propose,
-                     graph=graph)
+                     graph=graph, suspects=suspects)
         per_feature = result.energy / max(tracks.shape[1], 1)
         if propose:
             self._quiet, self._energy_ref = 0, per_feature
@@ -299,12 +312,21 @@ class OnlineSegmenter:
         return result, config
 
     def _neighbourhood(self, tracks: np.ndarray, keys: np.ndarray, model_name: str,
-                       previous: Neighbourhood | None) -> tuple[Neighbourhood, float]:
-        """The neighbourhood of ``tracks`` (kept for the next frame) and the noise scale of
-        ``model_name`` on them (given, or estimated)."""
-        graph = neighbourhood(tracks, keys, previous, self.config.solver)
+                       previous: Neighbourhood | None
+                       ) -> tuple[Neighbourhood, float, np.ndarray | None]:
+        """The neighbourhood of ``tracks`` (of the tracks ``keys``; kept for the next frame),
+        the noise scale of ``model_name`` on them (given, or estimated) and the tracks
+        suspected isolated over their past fits (None: none can be yet)."""
+        solver = self.config.solver
+        graph = neighbourhood(tracks, keys, previous, solver)
         self._graph = (model_name, graph)
-        return graph, self.config.noise or self._scale(tracks, model_name, graph)
+        suspects = None
+        if solver.isolation and solver.persist_deviations and tracks.shape[0] >= LEAST_SPAN:
+            ratios = isolation_ratios(graph.nearest_miss())
+            if ratios is not None:
+                suspects = persistent_suspects(self._isolation.update(keys, ratios), solver)
+        noise = self.config.noise or self._scale(tracks, model_name, graph, suspects)
+        return graph, noise, suspects
 
     def _config(self, model_name: str, noise: float, kind: str) -> PearlConfig:
         """The fit's configuration: ``self.config`` with ``model_name`` and ``noise``, and for a
@@ -324,7 +346,8 @@ class OnlineSegmenter:
             self._configs = (key, config)
         return self._configs[1]
 
-    def _scale(self, tracks: np.ndarray, model_name: str, graph: Neighbourhood) -> float:
+    def _scale(self, tracks: np.ndarray, model_name: str, graph: Neighbourhood,
+               suspects: np.ndarray | None) -> float:
         """The noise scale of ``model_name``, estimated again every ``rescale_every`` frames
         (solver settings): it changes slowly, and estimating it costs more than a warm-started
         fit."""
@@ -332,7 +355,7 @@ class OnlineSegmenter:
         scale, age = self._scales.get(model_name, (0.0, every))
         if age >= every:
             config = dataclasses.replace(self.config, model=model_name)
-            scale, age = noise_scale(tracks, config, self._rng, graph), 0
+            scale, age = noise_scale(tracks, config, self._rng, graph, suspects), 0
         self._scales[model_name] = (scale, age + 1)
         return scale
 
@@ -442,7 +465,7 @@ def _nearest_subspace(coords: np.ndarray, age: np.ndarray, fitted: np.ndarray,
     young : (Y,) int, tracks to label, each with an ``age`` of at least 2
     settings : SolverSettings, optional
     """
-    settings = settings or SolverSettings()
+    settings = settings or default_solver()
     out = np.full(young.size, OUTLIER, dtype=np.int64)
     motions = np.unique(fitted_labels[fitted_labels != OUTLIER])
     groups = [fitted[fitted_labels == motion] for motion in motions]

@@ -21,7 +21,7 @@ from typing import ClassVar, NamedTuple
 import numpy as np
 from scipy.optimize import least_squares
 
-from pearl_ros.core.config import SolverSettings
+from pearl_ros.core.config import SolverSettings, default_solver
 from pearl_ros.core.errors import InputError
 from pearl_ros.core.models.base import check_groups, check_tracks
 
@@ -233,7 +233,7 @@ class TwoViewModel:
     refit_from_start: ClassVar[bool] = True  # Levenberg-Marquardt from the given params
 
     def __init__(self, settings: SolverSettings | None = None) -> None:
-        settings = settings or SolverSettings()
+        settings = settings or default_solver()
         # Residual evaluations per LM refit: a few ms for 500 inliers, and a refit runs for
         # every model in every PEaRL iteration. LM from the linear estimate converges in a
         # handful of steps.

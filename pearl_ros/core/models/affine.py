@@ -16,7 +16,7 @@ from typing import ClassVar
 
 import numpy as np
 
-from pearl_ros.core.config import SolverSettings
+from pearl_ros.core.config import SolverSettings, default_solver
 from pearl_ros.core.models.base import check_groups, check_tracks
 
 # A sample whose 3 difference vectors have a singular value below this share of the largest
@@ -39,7 +39,7 @@ class AffineSubspace:
     dim = 3
 
     def __init__(self, settings: SolverSettings | None = None) -> None:
-        self.reference_frames = (settings or SolverSettings()).affine_reference_frames
+        self.reference_frames = (settings or default_solver()).affine_reference_frames
 
     def data(self, tracks: np.ndarray) -> np.ndarray:
         """Trajectories ``(N, 2F)`` scaled by 1/sqrt(F), so distances are RMS pixels per frame."""

@@ -24,7 +24,7 @@ from typing import ClassVar
 
 import numpy as np
 
-from pearl_ros.core.config import SolverSettings
+from pearl_ros.core.config import SolverSettings, default_solver
 from pearl_ros.core.models._twoview import (
     RANK_TOL,
     Similarities,
@@ -47,7 +47,7 @@ class Fundamental(TwoViewModel):
     min_samples: int = 8
 
     def __init__(self, settings: SolverSettings | None = None) -> None:
-        settings = settings or SolverSettings()
+        settings = settings or default_solver()
         super().__init__(settings)
         # Sampson-reweighted linear fits after the first in fit_groups (one is enough: more
         # change the Hopkins155 scales by < 3%).

@@ -1,0 +1,143 @@
+"""Isolation judged over time (pearl_ros.online.isolation): each track's isolation ratios over
+its last fits, the tracks far above the scene's median, and what the segmenter hands fit."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from pearl_ros.core import pearl
+from pearl_ros.core.config import PearlConfig, SolverSettings
+from pearl_ros.core.errors import InputError
+from pearl_ros.core.neighbourhood import neighbourhood
+from pearl_ros.datasets.robot import robot_stream
+from pearl_ros.online.config import OnlineConfig
+from pearl_ros.online.isolation import LEAST_JUDGED, IsolationHistory, persistent_suspects
+from pearl_ros.online.segmenter import OnlineSegmenter
+
+SETTINGS = SolverSettings()
+
+
+def test_a_track_keeps_its_last_ratios_and_forgets_them_once_it_is_gone():
+    # Oracle: a dict of per-key lists, cut to the last `frames` values; a key missing from a
+    # frame starts over when it comes back.
+    rng = np.random.default_rng(0)
+    frames = 4
+    history, oracle = IsolationHistory(frames), {}
+    for _ in range(30):
+        keys = rng.permutation(np.flatnonzero(rng.random(12) < 0.7))
+        ratios = rng.uniform(0.5, 50.0, keys.size)
+        ratios[rng.random(keys.size) < 0.1] = np.inf  # no neighbour: not recorded
+        rows = history.update(keys, ratios)
+        oracle = {int(k): (oracle.get(int(k), []) + [r])[-frames:]
+                  for k, r in zip(keys, ratios, strict=True)}
+        for key, row in zip(keys, rows, strict=True):
+            want = [np.log(r) if np.isfinite(r) else np.nan for r in oracle[int(key)]]
+            want = [np.nan] * (frames - len(want)) + want
+            np.testing.assert_array_equal(row, want)
+
+
+def test_a_ratio_of_zero_counts_as_the_least_ratio_seen():
+    logs = np.log(np.full((LEAST_JUDGED, 5), 2.0))
+    logs[0] = -np.inf  # a point its neighbour fits exactly
+    logs[1, 2] = -np.inf
+    logs[-1] = np.log(100.0)
+    suspect = persistent_suspects(logs, SETTINGS)
+    assert np.flatnonzero(suspect).tolist() == [LEAST_JUDGED - 1]
+
+
+def _oracle(logs, settings):
+    """The rule, one track at a time."""
+    judged = [i for i, row in enumerate(logs) if np.count_nonzero(~np.isnan(row)) >=
+              settings.persist_frames]
+    means = {i: float(np.nanmean(logs[i])) for i in judged}
+    values = np.array(list(means.values()))
+    median = float(np.median(values))
+    spread = 1.4826 * float(np.median(np.abs(values - median)))
+    threshold = max(median + settings.persist_deviations * spread,
+                    np.log(settings.persist_least))
+    return sorted(i for i in judged if means[i] > threshold)
+
+
+@pytest.mark.parametrize('seed', range(5))
+def test_tracks_far_above_the_median_track_are_suspected(seed):
+    rng = np.random.default_rng(seed)
+    n, frames = 60, 10
+    logs = rng.normal(0.3, 0.3, (n, frames))
+    logs[rng.random((n, frames)) < 0.3] = np.nan  # tracks born late, frames not fitted
+    wanderers = rng.choice(n, 6, replace=False)
+    logs[wanderers] += rng.uniform(1.0, 4.0, (6, 1))
+    got = np.flatnonzero(persistent_suspects(logs, SETTINGS)).tolist()
+    assert got == _oracle(logs, SETTINGS)
+    assert set(got) <= set(wanderers.tolist())
+
+
+def test_none_is_suspected_where_every_track_moves_alike_or_too_few_are_judged():
+    alike = np.zeros((40, 10))  # every ratio 1: no spread at all
+    alike[0] = np.log(2.5)  # above the median, but under persist_least (3)
+    assert not persistent_suspects(alike, SETTINGS).any()
+    alike[0] = np.log(4.0)
+    assert persistent_suspects(alike, SETTINGS).tolist() == [True] + [False] * 39
+    few = alike[: LEAST_JUDGED - 1]
+    assert not persistent_suspects(few, SETTINGS).any()
+    young = alike.copy()
+    young[:, : 10 - SETTINGS.persist_frames + 1] = np.nan  # one frame short everywhere
+    assert not persistent_suspects(young, SETTINGS).any()
+    off = dataclasses.replace(SETTINGS, persist_deviations=0.0)
+    assert not persistent_suspects(alike, off).any()
+
+
+def test_suspects_leave_the_noise_scale_as_if_they_were_not_there(affine_scene):
+    # Oracle: the scale of the other points alone. On this clean scene the isolation test
+    # itself suspects no point, so the given suspects are all that is left out.
+    tracks, _ = affine_scene(frames=8, seed=3)
+    graph = neighbourhood(tracks)
+    assert not (pearl.isolation_ratios(graph.nearest_miss()) > SETTINGS.isolation).any()
+    suspects = np.zeros(tracks.shape[1], dtype=bool)
+    suspects[::7] = True
+    config = PearlConfig()
+    with_them = pearl.noise_scale(tracks, config, 5, graph, suspects)
+    assert with_them == pearl.noise_scale(tracks[:, ~suspects], config, 5)
+    assert with_them != pearl.noise_scale(tracks, config, 5, graph)
+
+
+def test_fit_refuses_suspects_of_the_wrong_shape(affine_scene):
+    tracks, _ = affine_scene(frames=5, seed=1)
+    with pytest.raises(InputError, match='suspects must be'):
+        pearl.fit(tracks, suspects=np.zeros(3, dtype=bool))
+    with pytest.raises(InputError, match='suspects must be'):
+        pearl.fit(tracks, suspects=np.zeros(tracks.shape[1]))
+
+
+def test_the_segmenter_hands_fit_the_wandering_tracks_of_a_robot_stream(monkeypatch):
+    # A robot-like stream (moving perspective camera, 10% outlier tracks wandering 3 px a frame):
+    # no such track passes the one-window isolation test (40 times the core), but over its
+    # frames it stays far above the median track. A spy records what fit was given; the truth
+    # of each fitted point is found by its pixels in the frame.
+    from pearl_ros.online import segmenter as module
+    given = []
+
+    def spy(tracks, config, *args, **kwargs):
+        given.append((tracks[-1], kwargs.get('suspects')))
+        return real(tracks, config, *args, **kwargs)
+
+    real = module.fit
+    monkeypatch.setattr(module, 'fit', spy)
+    segmenter = OnlineSegmenter(online=OnlineConfig(budget_ms=0.0))
+    hits = total = walks = 0
+    for t, frame in enumerate(robot_stream(frames=80, seed=0)):
+        given.clear()
+        segmenter.process(1_000_000_000 + t * 33_333_333, frame.ids, frame.uv)
+        if t < 40 or not given or given[-1][1] is None:
+            continue
+        last, suspects = given[-1]
+        truth = {tuple(p): k for p, k in zip(frame.uv.tolist(), frame.truth.tolist(), strict=True)}
+        outlier = np.array([truth[tuple(p)] == -1 for p in last.tolist()])
+        hits += np.count_nonzero(suspects & outlier)
+        total += np.count_nonzero(suspects)
+        walks += np.count_nonzero(outlier)
+    assert total > 0
+    assert hits / total >= 0.9  # what is suspected is nearly all outlier tracks
+    assert hits / walks >= 0.3  # and a good share of the outlier tracks fitted
