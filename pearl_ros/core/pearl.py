@@ -228,9 +228,14 @@ class _Setting:
         rows = data_costs(residuals, sigmas, self.dof, self.floor)
         return np.vstack([np.broadcast_to(self.outlier_cost, (1, n)), rows])
 
-    def problem(self, unary: np.ndarray) -> Problem:
+    def problem(self, unary: np.ndarray, continued: np.ndarray | None = None,
+                share: float = 1.0) -> Problem:
+        """The optimiser's problem over ``unary``: each model pays the label cost, and the
+        models ``continued`` ``(K,)`` bool pay ``share`` of it."""
         costs = np.full(unary.shape[0], self.label_cost)
         costs[OUTLIER_ROW] = 0.0
+        if continued is not None and share != 1.0:
+            costs[1:][continued] *= share
         return Problem(unary, self.edges, self.weights, costs, OUTLIER_ROW,
                        self.solver.outlier_tie, self.solver.outlier_apart)
 
@@ -255,6 +260,7 @@ class _Search:
     origin : (K,) int64, the init segment each model stands for, OUTLIER for none
     prior : (N,) int64, each point's init segment, OUTLIER for none
     init_cost : float, cost units of the init term
+    init_share : float, the share of the label cost a model standing for an init segment pays
     fitted_to : list of (M,) int64 arrays or None, per model: the points it was last fitted
         to (None for a proposal fitted to its minimal sample)
     """
@@ -268,6 +274,7 @@ class _Search:
     prior: np.ndarray
     init_cost: float
     fitted_to: list[np.ndarray | None]
+    init_share: float = 1.0
     unary: np.ndarray = field(init=False)  # (1 + K, N)
     bias: np.ndarray = field(init=False)  # (1 + K, N), read-only zeros without an init cost
     problem: Problem = field(init=False)
@@ -281,7 +288,10 @@ class _Search:
         self.unary = self.setting.unary(self.residuals, self.sigmas)
         if self.init_cost:
             self.unary += self.bias
-        self.problem = self.setting.problem(self.unary)
+        self.problem = self._problem()
+
+    def _problem(self) -> Problem:
+        return self.setting.problem(self.unary, self.origin != OUTLIER, self.init_share)
 
     def energy(self) -> float:
         return energy(self.problem, self.labels)
@@ -304,7 +314,7 @@ class _Search:
         else:
             self.bias = _init_bias(self.prior, self.origin, 0.0)
         self.unary = np.concatenate([self.unary, rows])
-        self.problem = setting.problem(self.unary)
+        self.problem = self._problem()
 
     def adopt(self, label: int, fitted: _Refit, members: np.ndarray) -> None:
         """Model ``label`` becomes a refit of :func:`_refit_one` (params, noise level, residual
@@ -330,10 +340,11 @@ class _Search:
         rows = np.concatenate([[OUTLIER_ROW], kept + 1])
         self.unary = self.unary[rows]
         self.bias = _init_bias(self.prior, self.origin, self.init_cost)
-        self.problem = self.setting.problem(self.unary)
+        self.problem = self._problem()
 
 
-def _start(setting: _Setting, init: np.ndarray | None, init_cost: float) -> _Search:
+def _start(setting: _Setting, init: np.ndarray | None, init_cost: float,
+           init_share: float = 1.0) -> _Search:
     """The search before the first round: the models of the ``init`` segments, each refitted to
     its points, and their labelling; without ``init``, no model and every point an outlier."""
     n = setting.data.shape[0]
@@ -349,7 +360,8 @@ def _start(setting: _Setting, init: np.ndarray | None, init_cost: float) -> _Sea
     fitted_to: list[np.ndarray | None] = [np.flatnonzero(labels == k + 1)
                                           for k in range(params.shape[0])]
     return _Search(setting, labels, params, sigmas, residuals,
-                   _origins(labels, prior, params.shape[0]), prior, init_cost, fitted_to)
+                   _origins(labels, prior, params.shape[0]), prior, init_cost, fitted_to,
+                   init_share)
 
 
 def fit(
@@ -362,6 +374,7 @@ def fit(
     propose: bool = True,
     graph: Neighbourhood | None = None,
     suspects: np.ndarray | None = None,
+    init_label_share: float = 1.0,
 ) -> PearlResult:
     """Segment tracked points into rigid motions; the number of motions is found, not given.
 
@@ -395,13 +408,17 @@ def fit(
         Points the caller suspects isolated, besides those the isolation test finds
         (``SolverSettings.isolation``; the online segmenter judges tracks over their past
         frames). Ignored when the test is off.
+    init_label_share : float in [0, 1]
+        With ``init``: the share of the label cost that a model standing for an init segment
+        pays (a motion that goes on), where a fresh proposal pays all of it. Below 1, a motion
+        is harder to start than to keep: a label-level counterpart of ``init_cost``.
 
     Returns
     -------
     PearlResult
     """
     return _run(_steps(tracks, config or PearlConfig(), np.random.default_rng(rng), init,
-                       deadline, init_cost, propose, graph, suspects))
+                       deadline, init_cost, propose, graph, suspects, init_label_share))
 
 
 def _run(steps: Generator[object, None, _T]) -> _T:
@@ -486,8 +503,8 @@ class SlicedFit:
 
 def _steps(tracks: np.ndarray, config: PearlConfig, rng: np.random.Generator,
            init: np.ndarray | None, deadline: float | None, init_cost: float, propose: bool,
-           graph: Neighbourhood | None, suspects: np.ndarray | None = None
-           ) -> Generator[_Search | None, None, PearlResult]:
+           graph: Neighbourhood | None, suspects: np.ndarray | None = None,
+           init_share: float = 1.0) -> Generator[_Search | None, None, PearlResult]:
     """:func:`fit`'s steps: yields the search once set up, then None before each step
     (:class:`SlicedFit`); returns the result."""
     timings = {'setup': 0.0, 'propose': 0.0, 'expand': 0.0, 'refit': 0.0}
@@ -495,7 +512,9 @@ def _steps(tracks: np.ndarray, config: PearlConfig, rng: np.random.Generator,
         setting = _setting(tracks, config, rng, graph, suspects)
     if not init_cost >= 0:
         raise InputError(f'init_cost must be >= 0, got {init_cost!r}')
-    search = _start(setting, init, init_cost)
+    if not 0.0 <= init_share <= 1.0:
+        raise InputError(f'init_label_share must be in [0, 1], got {init_share!r}')
+    search = _start(setting, init, init_cost, init_share)
     yield search
     history: list[float] = []  # the energy after every iteration and every round's merges
     iterations = 0

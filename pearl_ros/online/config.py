@@ -52,6 +52,10 @@ class OnlineConfig:
     temporal_cost: float = spec(
         2.0, "cost units for a feature labelled other than its previous frame's motion (warm "
         'start only): a temporal Potts term against label flicker', low=0.0, high=1e6)
+    continued_label_cost: float = spec(
+        0.5, "share of label_cost a motion of the previous frame pays to go on (warm start "
+        'only; a fresh motion pays all of it): a motion is harder to start than to keep',
+        low=0.0, high=1.0)
     budget_ms: float = spec(
         20.0, 'ms, per-frame time budget of the optimiser; 0 = none. When it bites, labels '
         'depend on the machine; the first fit (and the first after a reset) then runs over '

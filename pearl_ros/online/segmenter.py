@@ -301,7 +301,8 @@ class OnlineSegmenter:
             config = self._config(model_name, noise, 'cold')
         result = fit(tracks, config, self._rng, init=init, deadline=deadline,
                      init_cost=self.online.temporal_cost if warm else 0.0, propose=propose,
-                     graph=graph, suspects=suspects)
+                     graph=graph, suspects=suspects,
+                     init_label_share=self.online.continued_label_cost)
         per_feature = result.energy / max(tracks.shape[1], 1)
         if propose:
             self._quiet, self._energy_ref = 0, per_feature

@@ -10,6 +10,7 @@ from pearl_ros.core.config import PearlConfig
 from pearl_ros.core.errors import InputError
 from pearl_ros.core.labels import OUTLIER
 from pearl_ros.core.metrics import misclassification
+from pearl_ros.core.models import get_model
 from pearl_ros.core.neighbourhood import neighbourhood
 from pearl_ros.core.pearl import evaluate_segmentation, fit
 
@@ -268,6 +269,42 @@ def test_the_init_term_costs_nothing_when_every_point_keeps_its_segment(affine_s
     assert misclassification(plain.labels, truth) == 0.0
     assert misclassification(with_term.labels, truth) == 0.0
     assert with_term.energy == pytest.approx(plain.energy, rel=1e-9)
+
+
+def test_models_that_go_on_pay_their_share_of_the_label_cost(affine_scene):
+    # Oracle: evaluate_segmentation charges every segment the whole label cost (label_cost
+    # times the family's weight). Started from
+    # the truth without fresh proposals, each model of the result stands for an init segment,
+    # so at a share s the fit's energy is that less (1 - s) label costs per model.
+    tracks, truth = affine_scene(sizes=(200, 150, 120), noise=0.5, seed=4)
+    config = PearlConfig(rounds=1)
+    for share in (1.0, 0.5, 0.0):
+        result = fit(tracks, config, rng=0, init=truth, propose=False, init_label_share=share)
+        assert misclassification(result.labels, truth) == 0.0
+        whole, _ = evaluate_segmentation(tracks, result.labels, config, rng=0)
+        model = get_model(config.model)
+        per_model = config.label_cost * model.label_cost_weight(model.data(tracks))
+        saved = (1.0 - share) * per_model * result.num_models
+        assert result.energy == pytest.approx(whole - saved, rel=1e-9)
+
+
+def test_a_motion_is_kept_at_a_share_of_the_label_cost_that_would_not_start_it(affine_scene):
+    # Behaviour flip: a small body (12 points) whose data gain is below the label cost but
+    # above a tenth of it. Cold, with every proposal paying the whole cost, it is merged; a
+    # warm start from the truth keeps it when its model pays a tenth, and merges it at the whole.
+    tracks, truth = affine_scene(sizes=(200, 12), noise=0.5, seed=6)
+    config = PearlConfig(rounds=1, label_cost=5e3)
+    assert fit(tracks, config, rng=0).num_models == 1
+    kept = fit(tracks, config, rng=0, init=truth, init_label_share=0.1)
+    assert misclassification(kept.labels, truth) == 0.0
+    whole = fit(tracks, config, rng=0, init=truth, init_label_share=1.0)
+    assert whole.num_models == 1
+
+
+def test_an_init_label_share_outside_0_1_is_rejected(affine_scene):
+    tracks, truth = affine_scene(sizes=(60, 50), noise=0.5)
+    with pytest.raises(InputError, match='init_label_share'):
+        fit(tracks, rng=0, init=truth, init_label_share=1.5)
 
 
 def test_a_negative_init_cost_is_rejected(affine_scene):

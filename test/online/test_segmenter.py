@@ -235,22 +235,39 @@ def test_warm_and_cold_agree_with_the_truth_on_a_clear_scene():
         assert results[-1].warm == warm
 
 
-def test_warm_frames_measure_pairs_in_their_own_unit(monkeypatch):
-    # The segmenter hands fit a configuration: cold frames keep unit_quantile, warm ones take
-    # warm_unit_quantile. A spy records what fit was given and calls the real fit.
+def _fit_calls(monkeypatch, online, read):
+    """Run a one-object synthetic stream through a segmenter with ``online``; ``(warm, read(
+    config, kwargs))`` for each call of fit, recorded by a spy that calls the real fit."""
     from pearl_ros.online import segmenter as module
     given = []
 
     def spy(tracks, config, *args, **kwargs):
-        given.append((kwargs.get('init') is not None, config.unit_quantile))
+        given.append((kwargs.get('init') is not None, read(config, kwargs)))
         return real(tracks, config, *args, **kwargs)
 
     real = module.fit
     monkeypatch.setattr(module, 'fit', spy)
-    frames = list(synthetic_stream(120, 6, (BodySpec(0.4),), seed=13))
+    run(list(synthetic_stream(120, 6, (BodySpec(0.4),), seed=13)),
+        OnlineSegmenter(online=online))
+    return given
+
+
+def test_warm_frames_measure_pairs_in_their_own_unit(monkeypatch):
+    # The segmenter hands fit a configuration: cold frames keep unit_quantile, warm ones take
+    # warm_unit_quantile.
     online = dataclasses.replace(UNTIMED, warm_unit_quantile=0.3)
-    run(frames, OnlineSegmenter(online=online))
-    assert {warm: q for warm, q in given} == {False: PearlConfig().unit_quantile, True: 0.3}
+    given = _fit_calls(monkeypatch, online, lambda config, kwargs: config.unit_quantile)
+    assert dict(given) == {False: PearlConfig().unit_quantile, True: 0.3}
+
+
+def test_warm_frames_let_the_last_frame_s_motions_go_on_at_their_share_of_the_label_cost(
+        monkeypatch):
+    # Every warm fit gets continued_label_cost as the share its init models pay; a cold fit
+    # has no init for it to apply to.
+    online = dataclasses.replace(UNTIMED, continued_label_cost=0.25)
+    given = _fit_calls(monkeypatch, online, lambda config, kwargs: kwargs['init_label_share'])
+    assert {share for warm, share in given if warm} == {0.25}
+    assert any(not warm for warm, _ in given)
 
 
 def test_same_seed_same_frames_same_labels():
