@@ -141,3 +141,29 @@ def test_the_segmenter_hands_fit_the_wandering_tracks_of_a_robot_stream(monkeypa
     assert total > 0
     assert hits / total >= 0.9  # what is suspected is nearly all outlier tracks
     assert hits / walks >= 0.3  # and a good share of the outlier tracks fitted
+
+
+def test_tracks_after_a_reset_start_without_a_past(monkeypatch):
+    # After a reset (an older stamp: a bag played again) every track is a new one, even where
+    # the tracker's ids are the same, so no fit is handed a suspect until persist_frames fits
+    # of three frames or more have run again.
+    from pearl_ros.online import segmenter as module
+    given = []
+
+    def spy(tracks, config, *args, **kwargs):
+        suspects = kwargs.get('suspects')
+        given.append(0 if suspects is None else int(np.count_nonzero(suspects)))
+        return real(tracks, config, *args, **kwargs)
+
+    real = module.fit
+    monkeypatch.setattr(module, 'fit', spy)
+    frames = list(robot_stream(frames=60, seed=0))
+    segmenter = OnlineSegmenter(online=OnlineConfig(budget_ms=0.0))
+    for t, frame in enumerate(frames):
+        segmenter.process(2_000_000_000 + t * 33_333_333, frame.ids, frame.uv)
+    assert sum(given[-10:]) > 0
+    given.clear()
+    for t, frame in enumerate(frames[:6]):
+        segmenter.process(1_000_000_000 + t * 33_333_333, frame.ids, frame.uv)
+    # Fits over 2 and 3 .. 6 frames: at most 4 of three frames or more, fewer than 5.
+    assert given and sum(given) == 0
