@@ -29,9 +29,12 @@ import numpy as np
 
 from pearl_ros.bagio.decode import point_array
 from pearl_ros.bagio.encode import MessageTypes
-from pearl_ros.core.errors import InputError
+from pearl_ros.core.errors import InputError, one_line
 
 POINTCLOUD = 'sensor_msgs/msg/PointCloud'
+# The words that open the reason a record that cannot be read is skipped for, in the node's and
+# the replay's warnings and counts alike (:func:`unreadable`).
+UNREADABLE = 'cannot deserialise'
 POINTCLOUD2 = 'sensor_msgs/msg/PointCloud2'
 
 _LITTLE, _BIG = b'\x00\x01', b'\x00\x00'
@@ -301,3 +304,8 @@ def serialize(msg: Any) -> bytes:
     out.array('u1', np.frombuffer(memoryview(msg.data).cast('B'), np.uint8))  # type: ignore[arg-type]
     out.scalar('u1', int(bool(msg.is_dense)))
     return out.bytes()
+
+
+def unreadable(msgtype: str, err: BaseException) -> str:
+    """The one-line reason a record of ``msgtype`` that raised ``err`` is skipped for."""
+    return f'{UNREADABLE} {msgtype}: {one_line(err)}'

@@ -205,8 +205,7 @@ class FeatureStream:
             else:  # arrays straight from the CDR bytes: no Python object per point
                 msg = cdr.read(raw, msgtype)
         except _UNREADABLE as err:
-            reason = f'cannot deserialise {msgtype}: {one_line(err)}'
-            return FeatureMessage(index, log_time, msgtype, None, reason)
+            return FeatureMessage(index, log_time, msgtype, None, cdr.unreadable(msgtype, err))
         return FeatureMessage(index, log_time, msgtype, msg)
 
     def _copy(self, connection: Any, log_time: int, raw: Any) -> CopiedMessage:

@@ -31,7 +31,7 @@ from pearl_ros.pipeline.settings import Settings
 # Kinds of skipped message, each with words of the reasons that belong to it (first match).
 # A front end warns once per kind and counts the rest.
 _KINDS = (
-    ('deserialise', ('cannot deserialise',)),
+    ('deserialise', (cdr.UNREADABLE,)),
     ('empty', ('empty cloud',)),
     ('stamp', ('stamp',)),
     ('duplicate_ids', ('repeats feature id', 'duplicate ids')),
@@ -196,7 +196,7 @@ class MessagePipeline:
         try:
             return cdr.read(raw, msgtype)
         except InputError as err:
-            return Skipped.because(f'cannot deserialise {msgtype}: {one_line(err)}')
+            return Skipped.because(cdr.unreadable(msgtype, err))
 
     def read(self, msg: Any) -> tuple[np.ndarray, np.ndarray] | Skipped:
         """Step 1 alone: the ids ``(N,)`` int64 and pixels ``(N, 2)`` of a feature message, or
