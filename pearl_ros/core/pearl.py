@@ -466,7 +466,7 @@ class SlicedFit:
                  rng: np.random.Generator | int | None = None,
                  graph: Neighbourhood | None = None, deadline: float | None = None) -> None:
         self._steps = _steps(tracks, config or PearlConfig(), np.random.default_rng(rng), None,
-                             deadline, 0.0, True, graph, None)
+                             deadline, 0.0, True, graph)
         self.result: PearlResult | None = None
         self.steps_run = 0
         self._search: _Search | None = None

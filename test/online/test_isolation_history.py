@@ -111,11 +111,9 @@ def test_fit_refuses_suspects_of_the_wrong_shape(affine_scene):
         pearl.fit(tracks, suspects=np.zeros(tracks.shape[1]))
 
 
-def test_the_segmenter_hands_fit_the_wandering_tracks_of_a_robot_stream(monkeypatch):
-    # A robot-like stream (moving perspective camera, 10% outlier tracks wandering 3 px a frame):
-    # no such track passes the one-window isolation test (40 times the core), but over its
-    # frames it stays far above the median track. A spy records what fit was given; the truth
-    # of each fitted point is found by its pixels in the frame.
+def _fit_calls(monkeypatch):
+    """The ``(last frame's pixels, suspects)`` of every call of fit from now on, recorded by a
+    spy that calls the real fit."""
     from pearl_ros.online import segmenter as module
     given = []
 
@@ -125,6 +123,15 @@ def test_the_segmenter_hands_fit_the_wandering_tracks_of_a_robot_stream(monkeypa
 
     real = module.fit
     monkeypatch.setattr(module, 'fit', spy)
+    return given
+
+
+def test_the_segmenter_hands_fit_the_wandering_tracks_of_a_robot_stream(monkeypatch):
+    # A robot-like stream (moving perspective camera, 10% outlier tracks wandering 3 px a frame):
+    # no such track passes the one-window isolation test (40 times the core), but over its
+    # frames it stays far above the median track. The truth of each fitted point is found by
+    # its pixels in the frame.
+    given = _fit_calls(monkeypatch)
     segmenter = OnlineSegmenter(online=OnlineConfig(budget_ms=0.0))
     hits = total = walks = 0
     for t, frame in enumerate(robot_stream(frames=80, seed=0)):
@@ -147,23 +154,18 @@ def test_tracks_after_a_reset_start_without_a_past(monkeypatch):
     # After a reset (an older stamp: a bag played again) every track is a new one, even where
     # the tracker's ids are the same, so no fit is handed a suspect until persist_frames fits
     # of three frames or more have run again.
-    from pearl_ros.online import segmenter as module
-    given = []
+    given = _fit_calls(monkeypatch)
 
-    def spy(tracks, config, *args, **kwargs):
-        suspects = kwargs.get('suspects')
-        given.append(0 if suspects is None else int(np.count_nonzero(suspects)))
-        return real(tracks, config, *args, **kwargs)
+    def suspected(calls):
+        return sum(0 if s is None else int(np.count_nonzero(s)) for _, s in calls)
 
-    real = module.fit
-    monkeypatch.setattr(module, 'fit', spy)
     frames = list(robot_stream(frames=60, seed=0))
     segmenter = OnlineSegmenter(online=OnlineConfig(budget_ms=0.0))
     for t, frame in enumerate(frames):
         segmenter.process(2_000_000_000 + t * 33_333_333, frame.ids, frame.uv)
-    assert sum(given[-10:]) > 0
+    assert suspected(given[-10:]) > 0
     given.clear()
     for t, frame in enumerate(frames[:6]):
         segmenter.process(1_000_000_000 + t * 33_333_333, frame.ids, frame.uv)
     # Fits over 2 and 3 .. 6 frames: at most 4 of three frames or more, fewer than 5.
-    assert given and sum(given) == 0
+    assert given and suspected(given) == 0
