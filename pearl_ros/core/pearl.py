@@ -30,7 +30,7 @@ from pearl_ros.core.config import PearlConfig, SolverSettings, default_solver
 from pearl_ros.core.contrast import edge_weights, long_edge_stretch
 from pearl_ros.core.energy import Problem, energy
 from pearl_ros.core.errors import InputError
-from pearl_ros.core.expansion import expansion_move
+from pearl_ros.core.expansion import Expansions, expansion_move
 from pearl_ros.core.labels import OUTLIER
 from pearl_ros.core.models import MotionModel, get_model
 from pearl_ros.core.neighbourhood import Neighbourhood, nearest_neighbours, neighbourhood
@@ -153,6 +153,7 @@ def _sweep_moves(problem: Problem, labels: np.ndarray, settings: SolverSettings,
         gain = None  # the bounds change only when a move is accepted
         while True:
             if gain is None:
+                moves = Expansions(problem, labels)
                 used = np.zeros(unary.shape[0], dtype=bool)
                 used[labels] = True
                 gain = np.where(used, np.inf, _gain_bound(problem, labels) - costs)
@@ -169,7 +170,7 @@ def _sweep_moves(problem: Problem, labels: np.ndarray, settings: SolverSettings,
                 failed += int(not used[alpha])
                 continue
             yield
-            moved = expansion_move(problem, labels, alpha)
+            moved = moves.move(alpha)
             moved_energy = energy(problem, moved)
             if moved_energy < current - 1e-9:
                 labels, current, changed, gain = moved, moved_energy, True, None

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from pearl_ros.core.energy import Problem, energy
-from pearl_ros.core.expansion import expansion_move
+from pearl_ros.core.expansion import Expansions, expansion_move
 
 
 def random_problem(rng: np.random.Generator, n: int, num_labels: int) -> Problem:
@@ -40,6 +40,26 @@ def test_expansion_move_is_optimal_against_brute_force(seed):
         assert set(np.flatnonzero(moved != labels)) <= set(np.flatnonzero(moved == alpha))
         assert energy(problem, moved) == pytest.approx(best_move_energy(problem, labels, alpha),
                                                        abs=1e-9)
+
+
+@pytest.mark.parametrize('seed', range(10))
+def test_moves_from_one_labelling_are_each_optimal(seed):
+    # A sweep tries every label from one labelling with one Expansions: no move may disturb
+    # what the next one starts from.
+    rng = np.random.default_rng(100 + seed)
+    for _ in range(5):
+        n = int(rng.integers(2, 8))
+        problem = random_problem(rng, n, int(rng.integers(2, 6)))
+        problem = dataclasses.replace(problem, weights=problem.weights - 1.0, outlier_row=0,
+                                      outlier_tie=0.3, outlier_apart=True)
+        labels = rng.integers(0, problem.unary.shape[0], n)
+        moves = Expansions(problem, labels)
+        before = labels.copy()
+        for alpha in rng.permutation(problem.unary.shape[0]):
+            moved = moves.move(int(alpha))
+            assert energy(problem, moved) <= energy(problem, labels) + 1e-9
+            assert np.array_equal(moved, expansion_move(problem, labels, int(alpha)))
+        assert np.array_equal(labels, before)
 
 
 def test_expansion_to_an_unused_label_pays_its_label_cost():
@@ -244,12 +264,13 @@ def test_a_sweep_never_runs_one_move_twice_on_the_same_labelling(seed, monkeypat
     from pearl_ros.core import pearl
 
     runs: list[tuple[bytes, int]] = []
+    real = Expansions.move
 
-    def counted(problem, labels, alpha):
-        runs.append((np.asarray(labels).tobytes(), alpha))
-        return expansion_move(problem, labels, alpha)
+    def counted(self, alpha):
+        runs.append((np.asarray(self.labels).tobytes(), alpha))
+        return real(self, alpha)
 
-    monkeypatch.setattr(pearl, 'expansion_move', counted)
+    monkeypatch.setattr(Expansions, 'move', counted)
     rng = np.random.default_rng(seed)
     for _ in range(5):
         n = int(rng.integers(3, 9))

@@ -8,6 +8,7 @@ import pytest
 from pearl_ros.core import pearl
 from pearl_ros.core.config import PearlConfig
 from pearl_ros.core.errors import InputError
+from pearl_ros.core.expansion import Expansions
 from pearl_ros.core.labels import OUTLIER
 from pearl_ros.core.metrics import misclassification
 from pearl_ros.core.models import get_model
@@ -333,13 +334,13 @@ def test_a_passed_deadline_bounds_a_warm_fit_to_a_relabelling_and_one_split_tria
     # split trial, however many proposals it holds.
     tracks, truth = affine_scene(sizes=(120, 90, 80), noise=0.5, seed=3)
     moves = []
-    real = pearl.expansion_move
+    real = Expansions.move
 
-    def counted(*args):
-        moves.append(args[2])
-        return real(*args)
+    def counted(self, alpha):
+        moves.append(alpha)
+        return real(self, alpha)
 
-    monkeypatch.setattr(pearl, 'expansion_move', counted)
+    monkeypatch.setattr(Expansions, 'move', counted)
     fit(tracks, rng=0, init=truth)
     unbounded = len(moves)
     moves.clear()
