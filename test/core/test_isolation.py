@@ -145,6 +145,50 @@ def test_bridges_are_the_new_edges_of_a_triangulation_without_the_isolated_point
     assert graph.bridges(tracks, np.ones(tracks.shape[1], bool))[0].shape == (0, 2)
 
 
+@pytest.mark.parametrize('seed', range(6))
+def test_bridges_read_from_the_cavity_are_those_of_a_whole_new_triangulation(seed):
+    # The bridges come from re-triangulating only the cavity the isolated points leave; the
+    # oracle triangulates every other point anew. Isolated points alone, in clusters, at the
+    # hull and most of the points; tracks jittered so that the last frame differs.
+    rng = np.random.default_rng(seed)
+    n = int(rng.integers(40, 400))
+    last = rng.uniform(0, 640, (n, 2))
+    tracks = np.stack([last + rng.normal(0, 2, (n, 2)) for _ in range(4)] + [last])
+    share = (0.02, 0.1, 0.3, 0.6, 0.1, 0.3)[seed]
+    isolated = rng.random(n) < share
+    if seed >= 4:  # clusters: every point near an isolated centre is isolated too
+        centres = last[isolated][:5]
+        isolated = (np.linalg.norm(last[:, None] - centres[None], axis=2) < 60).any(axis=1)
+    graph = neighbourhood(tracks)
+    assert graph.triangulation is not None
+    assert graph._cavity_edges(last, isolated) is not None  # read from the cavity
+    bridges, misses = graph.bridges(tracks, isolated)
+    others = np.flatnonzero(~isolated)
+    expected = {(int(others[i]), int(others[j])) for i, j in _delaunay_pairs(last[others])}
+    expected -= {tuple(edge) for edge in graph.edges.tolist()}
+    assert {tuple(edge) for edge in bridges.tolist()} == expected
+    plain = dataclasses.replace(graph, triangulation=None)  # the whole triangulation anew
+    again, again_misses = plain.bridges(tracks, isolated)
+    order = np.lexsort(bridges.T[::-1]), np.lexsort(again.T[::-1])
+    np.testing.assert_array_equal(bridges[order[0]], again[order[1]])
+    np.testing.assert_allclose(misses[order[0]], again_misses[order[1]])
+
+
+def test_bridges_of_edges_kept_from_an_earlier_frame_triangulate_the_frame_given(affine_scene):
+    # A neighbourhood reused for the same features a frame later keeps the earlier frame's
+    # edges and triangulation; its bridges must still be those of the positions given.
+    tracks, _ = _walk_scene(affine_scene, seed=1)
+    earlier = neighbourhood(tracks[:-1], ids=np.arange(tracks.shape[1]))
+    graph = neighbourhood(tracks[1:], ids=np.arange(tracks.shape[1]), previous=earlier)
+    assert graph.triangulation is earlier.triangulation
+    isolated = np.random.default_rng(3).random(tracks.shape[1]) < 0.2
+    bridges, _ = graph.bridges(tracks[1:], isolated)
+    others = np.flatnonzero(~isolated)
+    expected = {(int(others[i]), int(others[j])) for i, j in _delaunay_pairs(tracks[-1][others])}
+    expected -= {tuple(edge) for edge in graph.edges.tolist()}
+    assert {tuple(edge) for edge in bridges.tolist()} == expected
+
+
 def test_bridges_join_the_points_around_outlier_walks_and_leave_the_other_ties_as_they_were(
         affine_scene):
     tracks, truth = _walk_scene(affine_scene, seed=3)
