@@ -189,7 +189,10 @@ def long_edge_stretch(tracks: np.ndarray, edges: np.ndarray, neighbours: np.ndar
     ends = [np.concatenate([edges[long, i : i + 1], neighbours[edges[long, i]]], axis=1)
             for i in (0, 1)]
     dim = settings.subspace_dim
-    first, second = np.split(_spread(rows, np.concatenate(ends, axis=0), dim), 2)
+    # Each end's own spread once: long edges share their ends (most run along the hull).
+    points, which = np.unique(edges[long], return_inverse=True)
+    alone = _spread(rows, np.concatenate([points[:, None], neighbours[points]], axis=1), dim)
+    first, second = alone[which.reshape(-1, 2)].T
     own = np.sqrt(0.5 * (first**2 + second**2))
     both = _spread(rows, np.concatenate(ends, axis=1), dim)
     coherent = both <= settings.coherence * np.maximum(own, 1e-12)
