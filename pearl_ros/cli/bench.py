@@ -36,6 +36,7 @@ from typing import Any, TextIO
 
 from pearl_ros.core.config import PearlConfig
 from pearl_ros.core.errors import InputError, PearlError, UsageParser
+from pearl_ros.pipeline.threads import THREAD_VARIABLES, limit_blas_threads
 
 CATEGORIES = ('checkerboard', 'traffic', 'articulated')
 MOTION_GROUPS = (2, 3)  # columns always shown, as in Table 2.2; other counts only under 'all'
@@ -52,15 +53,6 @@ CSV_COLUMNS = (
     'energy',
     'truth_energy',
     'crossover_pct',
-)
-# Thread pools of BLAS / OpenMP libraries read these once, when the library is loaded.
-THREAD_VARIABLES = (
-    'OMP_NUM_THREADS',
-    'OPENBLAS_NUM_THREADS',
-    'MKL_NUM_THREADS',
-    'BLIS_NUM_THREADS',
-    'VECLIB_MAXIMUM_THREADS',
-    'NUMEXPR_NUM_THREADS',
 )
 
 
@@ -693,6 +685,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of ``pearl_bench``; returns the exit code."""
     try:
         args = _build_parser().parse_args(argv)
+        limit_blas_threads()  # as pearl_node runs (spawned workers: THREAD_VARIABLES)
         from pearl_ros.cli import bench_sets
 
         commands = {'hopkins155': _hopkins155, 'stream': _stream, 'latency': _latency,

@@ -51,6 +51,7 @@ from pearl_ros.core.errors import InputError
 from pearl_ros.evaluation import latency
 from pearl_ros.pipeline import settings as pipeline_settings
 from pearl_ros.pipeline.messages import MessagePipeline, Skipped
+from pearl_ros.pipeline.threads import limit_blas_threads
 from pearl_ros.ros import convert
 from pearl_ros.ros.node import OUTPUT_DEPTH, PearlNode, input_qos
 from pearl_ros.ros.play import spin_until
@@ -167,6 +168,7 @@ class Row:
     stats: latency.LatencyStats
     mean_pct: float
     final_pct: float
+    cpu_ms: float  # CPU time of the whole process per frame sent, every thread's
 
 
 def run_row(kind: str, make_node: Callable[[str], Node], messages: list[Any],
@@ -191,7 +193,9 @@ def run_row(kind: str, make_node: Callable[[str], Node], messages: list[Any],
         if not spin_until(executor, lambda: source.publisher.get_subscription_count() > 0,
                           10.0):
             raise InputError(f'the {kind} node did not subscribe')
+        cpu = time.process_time()
         source.run(executor)
+        cpu_ms = 1e3 * (time.process_time() - cpu) / len(messages)
     finally:
         for item in (node, source):
             executor.remove_node(item)
@@ -200,7 +204,7 @@ def run_row(kind: str, make_node: Callable[[str], Node], messages: list[Any],
     latency_ms = [1e3 * source.latency_s[i] for i in sorted(source.latency_s)]
     stats = latency.latency_stats(latency_ms, len(messages), 1e3 / rate_hz)
     mean, final = latency.accuracy(source.labels, truth)
-    return Row(kind, features, rate_hz, stats, mean, final)
+    return Row(kind, features, rate_hz, stats, mean, final, cpu_ms)
 
 
 def format_rows(rows: Sequence[Row], title: str) -> str:
@@ -210,19 +214,21 @@ def format_rows(rows: Sequence[Row], title: str) -> str:
 
     lines = [title, '', f'{"node":<10} {"features":>8} {"Hz":>4} {"answered":>9} {"p50 ms":>7} '
              f'{"p99 ms":>7} {"max ms":>7} {"over %":>6} {"p99/p50":>7} {"mean err %":>10} '
-             f'{"final err %":>11}']
+             f'{"final err %":>11} {"CPU ms":>6}']
     for r in rows:
         s = r.stats
         lines.append(f'{r.kind:<10} {r.features:>8} {r.rate_hz:>4g} '
                      f'{f"{s.answered}/{s.sent}":>9} {cell(s.p50, ".1f", 7)} '
                      f'{cell(s.p99, ".1f", 7)} {cell(s.max, ".1f", 7)} '
                      f'{cell(s.over_pct, ".1f", 6)} {cell(s.ratio, ".2f", 7)} '
-                     f'{cell(r.mean_pct, ".2f", 10)} {cell(r.final_pct, ".2f", 11)}')
+                     f'{cell(r.mean_pct, ".2f", 10)} {cell(r.final_pct, ".2f", 11)} '
+                     f'{cell(r.cpu_ms, ".1f", 6)}')
     lines += [
         'latency: labels received - frame due (waiting included), answered frames only.',
         'over %: answered frames whose latency exceeds the frame period. no-op: decode and',
         'answer all -1. mean err %: misclassification over the last three quarters of the',
-        'frames (answered ones); final: the last answered frame.',
+        'frames (answered ones); final: the last answered frame. CPU ms: CPU time of the',
+        'benchmark\'s process (every thread: source, node, DDS) per frame sent.',
     ]
     return '\n'.join(lines)
 
@@ -253,6 +259,7 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
+    limit_blas_threads()  # as pearl_node runs
     try:
         overrides = pipeline_settings.parse_assignments(args.set)
         settings = pipeline_settings.build(overrides)  # checked before ROS starts

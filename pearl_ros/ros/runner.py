@@ -27,6 +27,7 @@ from std_msgs.msg import Header
 
 from pearl_ros.core.errors import InputError, one_line
 from pearl_ros.pipeline import settings as pipeline_settings
+from pearl_ros.pipeline.threads import limit_blas_threads
 from pearl_ros.ros import params
 
 WARN_PERIOD_S = 5.0  # s, at most one warning of each kind this often
@@ -105,6 +106,7 @@ def run(args: list[str] | None, program: str, usage: Callable[[], str],
     if own:
         return fail(f'unrecognized arguments: {" ".join(own)} (ROS arguments go after '
                     f'--ros-args; see {program} --help)')
+    limit_blas_threads()
     stop = StopRequest()
     try:
         return _spin(argv, files, stop, make_node)

@@ -30,10 +30,11 @@ def test_node_bench_answers_every_frame_with_a_no_op_row_and_a_pearl_node_row() 
             if line.split()[:1] in (['no-op'], ['pearl_node'])}
     assert set(rows) == {'no-op', 'pearl_node'}
     for row in rows.values():
-        kind, features, rate, answered, p50, p99, top, over, ratio, mean, final = row
+        kind, features, rate, answered, p50, p99, top, over, ratio, mean, final, cpu = row
         assert (features, rate, answered) == ('60', '30', f'{FRAMES}/{FRAMES}')
         assert 0 < float(p50) <= float(p99) <= float(top)
         assert 0 <= float(over) <= 100
+        assert float(cpu) > 0  # the process worked, at least to decode and answer
     # The no-op node labels every feature -1: wrong exactly where the truth is not an outlier,
     # over frames 5-19 (the last three quarters) of the same stream.
     truth = [frame.truth for frame in make_stream('robot', 60, FRAMES, 0)]
