@@ -83,7 +83,7 @@ class Neighbourhood:
         circles among the other points, so they are those of a triangulation of the cavity's
         own corners (the points on its triangles, isolated ones left out) that lie in it. That
         triangulation is of a few corners per isolated point instead of every point: the same
-        edges in general position, for a third of the time at 2,000 features.
+        edges in general position, for half the time at 2,000 features.
         """
         tri = self.triangulation
         if tri is None or tri.coplanar.size or not np.array_equal(tri.points, anchor):
