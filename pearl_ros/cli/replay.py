@@ -35,7 +35,6 @@ from pearl_ros.pipeline.replay import (
     replay,
     write_stats,
 )
-from pearl_ros.pipeline.threads import limit_blas_threads
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -97,7 +96,6 @@ def main(argv: Sequence[str] | None = None) -> int:
         except SystemExit as done:  # --help
             return int(done.code or 0)
         settings = settings_from_args(args)
-        limit_blas_threads()  # as pearl_node runs
         if args.stats is not None:
             check_stats_path(args.stats, args.output)
         show = args.progress == 'on' or (args.progress == 'auto' and sys.stderr.isatty())

@@ -43,7 +43,6 @@ from pearl_ros.cli.progress import ProgressBar
 from pearl_ros.core.errors import InputError, PearlError, UsageParser, one_line
 from pearl_ros.pipeline import settings as pipeline_settings
 from pearl_ros.pipeline.messages import Labelled, MessagePipeline
-from pearl_ros.pipeline.threads import limit_blas_threads
 from pearl_ros.tracking import image as image_io
 from pearl_ros.tracking.draw import Overlay
 from pearl_ros.tracking.tracker import FeatureTracker, Tracks
@@ -263,7 +262,6 @@ def main(argv: Sequence[str] | None = None) -> int:
             args = build_parser().parse_args(argv)
         except SystemExit as done:  # --help
             return int(done.code or 0)
-        limit_blas_threads()  # as pearl_node runs
         show = args.progress == 'on' or (args.progress == 'auto' and sys.stderr.isatty())
         bar = ProgressBar(sys.stderr, 'frames') if show else None
         stats = run(args, bar)
