@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import cached_property
 
 import numpy as np
 from scipy.spatial import Delaunay, QhullError, cKDTree
@@ -118,10 +119,16 @@ class Neighbourhood:
 
     def nearest_miss(self) -> np.ndarray:
         """Each point's least miss over its edges ``(N,)``, pixels (inf for a point with none):
-        how far it is from moving like its most alike neighbour."""
+        how far it is from moving like its most alike neighbour. Read-only, worked out once
+        (the online segmenter and the fit both read it)."""
+        return self._nearest
+
+    @cached_property
+    def _nearest(self) -> np.ndarray:
         nearest = np.full(self.neighbours.shape[0], np.inf)
         for end in (0, 1):
             np.minimum.at(nearest, self.edges[:, end], self.misses)
+        nearest.setflags(write=False)
         return nearest
 
 
