@@ -50,8 +50,8 @@ class Expansions:
         starts = np.searchsorted(labels[order], self._paid)
         ends = np.searchsorted(labels[order], self._paid, side='right')
         self._members = [order[s:e] for s, e in zip(starts, ends, strict=True)]
-        self._used = np.zeros(costs.size, dtype=bool)
-        self._used[used] = True
+        self.used = np.zeros(costs.size, dtype=bool)  # (L,) the labels the labelling uses
+        self.used[used] = True
 
     def move(self, alpha: int) -> np.ndarray:
         """The labelling of least energy one ``alpha``-expansion away (:func:`expansion_move`)."""
@@ -96,7 +96,7 @@ class Expansions:
         others = self._paid != alpha
         paid = self._paid[others]
         members = [m for m, other in zip(self._members, others, strict=True) if other]
-        new_alpha = costs[alpha] > 0 and not self._used[alpha]
+        new_alpha = costs[alpha] > 0 and not self.used[alpha]
         num_aux = paid.size + int(new_alpha)
         # Stands for infinity: more than all finite capacities of the graph together (not every
         # proposal's data costs, whose sum took a tenth of a move's time).

@@ -91,7 +91,8 @@ class Neighbourhood:
             return None  # other positions than the triangulation's, or points qhull dropped
         simplices = tri.simplices
         cavity = isolated[simplices].any(axis=1)
-        corners = np.unique(simplices[cavity])
+        removed = simplices[cavity]
+        corners = np.unique(removed)
         corners = corners[~isolated[corners]]
         if corners.size < 3:
             return None
@@ -100,7 +101,6 @@ class Neighbourhood:
         # cavity's rim is made of edges of both triangulations), so its first few pixels tell:
         # in the cavity where it leaves its first end p inside the angle at p of a triangle of
         # the cavity.
-        removed = simplices[cavity]
         angles = np.concatenate([np.roll(removed, -k, axis=1) for k in range(3)])  # (p, u, v)
         angles = angles[~isolated[angles[:, 0]]]
         angles = angles[np.argsort(angles[:, 0], kind='stable')]

@@ -154,8 +154,7 @@ def _sweep_moves(problem: Problem, labels: np.ndarray, settings: SolverSettings,
         while True:
             if gain is None:
                 moves = Expansions(problem, labels)
-                used = np.zeros(unary.shape[0], dtype=bool)
-                used[labels] = True
+                used = moves.used
                 gain = np.where(used, np.inf, _gain_bound(problem, labels) - costs)
                 yield  # the bounds cost as much as a move on large problems
             gain[tried] = -np.inf
