@@ -55,6 +55,15 @@ _Point32: Any = TYPESTORE.types['geometry_msgs/msg/Point32']
 _ChannelFloat32: Any = TYPESTORE.types['sensor_msgs/msg/ChannelFloat32']
 _PointField: Any = TYPESTORE.types['sensor_msgs/msg/PointField']
 _PointCloud: Any = TYPESTORE.types[POINTCLOUD]
+ODOMETRY = 'nav_msgs/msg/Odometry'
+_Odometry: Any = TYPESTORE.types[ODOMETRY]
+_Pose: Any = TYPESTORE.types['geometry_msgs/msg/Pose']
+_Point: Any = TYPESTORE.types['geometry_msgs/msg/Point']
+_Quaternion: Any = TYPESTORE.types['geometry_msgs/msg/Quaternion']
+_PoseWithCovariance: Any = TYPESTORE.types['geometry_msgs/msg/PoseWithCovariance']
+_Twist: Any = TYPESTORE.types['geometry_msgs/msg/Twist']
+_TwistWithCovariance: Any = TYPESTORE.types['geometry_msgs/msg/TwistWithCovariance']
+_Vector3: Any = TYPESTORE.types['geometry_msgs/msg/Vector3']
 _TYPES = MessageTypes.from_typestore(TYPESTORE)
 
 # Little-endian point layouts written for PointCloud2 (name, numpy type, PointField datatype).
@@ -75,6 +84,8 @@ def write_feature_bag(
     *,
     topic: str = '/feature_tracker/feature',
     truth_topic: str = '/ground_truth/labels',
+    poses: Iterable[tuple[int, np.ndarray, np.ndarray]] | None = None,
+    pose_topic: str = '/vins_estimator/camera_pose',
     msg_format: str = 'pointcloud',
     storage: str = 'mcap',
     normalized: Callable[[np.ndarray], np.ndarray] | None = None,
@@ -97,6 +108,10 @@ def write_feature_bag(
         increasing stamps.
     topic, truth_topic : str
         Topic names of features and ground truth.
+    poses : iterable of (stamp_ns, position, quaternion), optional
+        Camera poses in the world (position (3,) m, orientation (x, y, z, w) of the optical
+        frame), written as ``nav_msgs/msg/Odometry`` on ``pose_topic``, as VINS publishes its
+        ``camera_pose``; strictly increasing stamps.
     msg_format : {'pointcloud', 'pointcloud2'}
         Message layout of the features (module docstring).
     storage : {'mcap', 'sqlite3'}
@@ -125,12 +140,14 @@ def write_feature_bag(
         raise InputError(f'msg_format must be one of {tuple(FORMATS)}, got {msg_format!r}')
     if truth is not None and truth_topic == topic:
         raise InputError(f'truth_topic must differ from topic, both are {topic!r}')
+    if poses is not None and pose_topic in (topic, truth_topic):
+        raise InputError(f'pose_topic must differ from the other topics, got {pose_topic!r}')
     path = _ros2_path(path, storage, 'bag folder')
     if path.exists() or path.is_symlink():
         raise BagError(f'{path} exists already; delete it or choose another path')
     with staged(path) as target:
         _write(target, frames, truth, topic, truth_topic, msg_format, storage, normalized,
-               frame_id)
+               frame_id, (pose_topic, poses))
         if path.exists() or path.is_symlink():
             raise BagError(f'{path} appeared while writing; not overwriting it')
 
@@ -145,6 +162,7 @@ def _write(
     storage: str,
     normalized: Callable[[np.ndarray], np.ndarray] | None,
     frame_id: str,
+    poses: tuple[str, Iterable[tuple[int, np.ndarray, np.ndarray]] | None] = ('', None),
 ) -> None:
     msgtype = FORMATS[msg_format]
     encode = vins_pointcloud if msg_format == 'pointcloud' else _pointcloud2
@@ -159,6 +177,9 @@ def _write(
             streams = [_feature_messages(frames, encode, normalized, frame_id, connection)]
             if truth is not None:
                 streams.append(_truth_messages(truth, frame_id, truth_connection))
+            if poses[1] is not None:
+                pose_connection = writer.add_connection(poses[0], ODOMETRY, typestore=TYPESTORE)
+                streams.append(_pose_messages(poses[1], frame_id, pose_connection))
             # Both streams are in stamp order: merge them so log times never go back.
             for stamp, connection_, msg in heapq.merge(*streams, key=lambda item: item[0]):
                 raw = TYPESTORE.serialize_cdr(msg, connection_.msgtype)
@@ -420,6 +441,34 @@ def _truth_messages(
         check_range(labels, -_INT32, _INT32, f'truth item {index} labels (int32)')
         columns = {'id': ids, 'label': labels}
         yield stamp, connection, _cloud2(columns, _TRUTH_FIELDS, stamped_header(stamp, frame_id))
+        last = stamp
+
+
+def _pose_messages(
+    poses: Iterable[tuple[int, np.ndarray, np.ndarray]], frame_id: str, connection: Any
+) -> Iterator[tuple[int, Any, Any]]:
+    last: int | None = None
+    for index, item in enumerate(poses):
+        try:
+            stamp, position, orientation = item
+            stamp = int(stamp)
+            position = np.asarray(position, dtype=np.float64).reshape(3)
+            orientation = np.asarray(orientation, dtype=np.float64).reshape(4)
+        except (TypeError, ValueError) as err:
+            raise InputError(f'pose item {index} must be (stamp_ns, position (3,), '
+                             f'quaternion (4,))') from err
+        _check_stamp(stamp, last, f'pose item {index}')
+        pose = _Pose(position=_Point(x=position[0], y=position[1], z=position[2]),
+                     orientation=_Quaternion(x=orientation[0], y=orientation[1],
+                                             z=orientation[2], w=orientation[3]))
+        zeros = np.zeros(36, dtype=np.float64)
+        msg = _Odometry(
+            header=stamped_header(stamp, 'world'), child_frame_id=frame_id,
+            pose=_PoseWithCovariance(pose=pose, covariance=zeros),
+            twist=_TwistWithCovariance(twist=_Twist(linear=_Vector3(x=0.0, y=0.0, z=0.0),
+                                                    angular=_Vector3(x=0.0, y=0.0, z=0.0)),
+                                       covariance=zeros.copy()))
+        yield stamp, connection, msg
         last = stamp
 
 

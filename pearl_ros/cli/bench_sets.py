@@ -64,6 +64,9 @@ def add_commands(commands: Any) -> None:
                      help='also read each final window with the true camera poses: which '
                      'points a static point explains, and how far each group lies from the '
                      "static world's 3-D and 4-D affine subspaces")
+    syn.add_argument('--cameras', action='store_true',
+                     help="give the segmenter each frame's true camera (as a robot's odometry "
+                     'would): the static world becomes a motion of known parameters')
     common(syn)
     suite = commands.add_parser(
         'suite', help='every data set in one table',
@@ -152,9 +155,11 @@ def synthetic(args: argparse.Namespace) -> int:
     if min(args.scenes) < 0:
         raise InputError(f'--scenes must be >= 0, got {min(args.scenes)}')
     overrides, config, online = _configs(args)
-    tasks = [Task('robot', str(s), 'stream', config, online, args.seed) for s in args.scenes]
-    _report(_run(run_task, tasks, args.jobs),
-            _title('Online PEaRL on robot-like synthetic streams', overrides, online),
+    mode = 'cameras' if args.cameras else 'stream'
+    tasks = [Task('robot', str(s), mode, config, online, args.seed) for s in args.scenes]
+    title = 'Online PEaRL on robot-like synthetic streams' + (
+        ', true cameras given' if args.cameras else '')
+    _report(_run(run_task, tasks, args.jobs), _title(title, overrides, online),
             args.items)
     if args.oracle:
         from pearl_ros.evaluation.robot_oracle import final_window, format_readings
@@ -217,8 +222,9 @@ def _suite_items(data: Path, args: argparse.Namespace) -> list[tuple[str, Any]]:
                   for p in clip_paths(data / SET_FOLDERS['kt3dmoseg'])]
     items += [('set', Task('adelaide', str(p), 'two', config, online, args.seed))
               for p in pair_paths(data / SET_FOLDERS['adelaide'])]
-    items += [('set', Task('robot', str(s), 'stream', config, online, args.seed))
-              for s in SUITE_ROBOT_SEEDS]
+    for mode in ('stream', 'cameras'):
+        items += [('set', Task('robot', str(s), mode, config, online, args.seed))
+                  for s in SUITE_ROBOT_SEEDS]
     return items
 
 
@@ -229,7 +235,9 @@ def _dataset_of(item: tuple[str, Any]) -> str:
     if kind == 'stream':
         return 'hopkins155_stream'
     return {'hopkins_outliers': 'hopkins155_outliers', 'kt3dmoseg': f'kt3dmoseg_{task.mode}',
-            'adelaide': 'adelaidermf_f', 'robot': 'robot_synthetic'}[task.kind]
+            'adelaide': 'adelaidermf_f',
+            'robot': 'robot_synthetic_cameras' if task.mode == 'cameras' else 'robot_synthetic',
+            }[task.kind]
 
 
 def suite(args: argparse.Namespace) -> int:

@@ -153,6 +153,11 @@ class SolverSettings:
         True, 'over three frames or more, the points around isolated ones are also joined by '
         'the edges a Delaunay triangulation without the isolated points has, so that '
         'outlier tracks do not cut the ties between the points of a body')
+    static_contrast: float = spec(
+        3.0, 'with known cameras: neighbours whose static-world residuals differ by d noise '
+        'scales keep exp(-(d / static_contrast)^2) of their tie (a point that moves as the '
+        'static world would and one that does not are not alike); 0 = ties as without cameras',
+        low=0.0, high=1e6)
     sigma_ceiling: float = spec(
         0.0, 'most noise level a model may claim, in units of the noise scale; 0 = none',
         low=0.0, high=1e6)

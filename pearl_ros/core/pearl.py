@@ -33,6 +33,7 @@ from pearl_ros.core.errors import InputError
 from pearl_ros.core.expansion import Expansions, expansion_move
 from pearl_ros.core.labels import OUTLIER
 from pearl_ros.core.models import MotionModel, get_model
+from pearl_ros.core.models.ego import WithStaticWorld, static_ties
 from pearl_ros.core.neighbourhood import Neighbourhood, nearest_neighbours, neighbourhood
 from pearl_ros.core.proposals import mixed_samples, uniform_samples
 from pearl_ros.core.scale import local_scale
@@ -375,6 +376,7 @@ def fit(
     graph: Neighbourhood | None = None,
     suspects: np.ndarray | None = None,
     init_label_share: float = 1.0,
+    cameras: np.ndarray | None = None,
 ) -> PearlResult:
     """Segment tracked points into rigid motions; the number of motions is found, not given.
 
@@ -412,13 +414,20 @@ def fit(
         With ``init``: the share of the label cost that a model standing for an init segment
         pays (a motion that goes on), where a fresh proposal pays all of it. Below 1, a motion
         is harder to start than to keep: a label-level counterpart of ``init_cost``.
+    cameras : (F, 3, 4) float64, optional
+        The projection matrices (pixels from world) of the frames of ``tracks``, where the
+        caller knows them (odometry): the static world then joins the label set as a model
+        whose parameters are known (:mod:`pearl_ros.core.models.ego`), and neighbours that it
+        explains unequally are tied less (``SolverSettings.static_contrast``). The static
+        world comes out as one of the models; a result's params are all NaN for it.
 
     Returns
     -------
     PearlResult
     """
     return _run(_steps(tracks, config or PearlConfig(), np.random.default_rng(rng), init,
-                       deadline, init_cost, propose, graph, suspects, init_label_share))
+                       deadline, init_cost, propose, graph, suspects, init_label_share,
+                       cameras))
 
 
 def _run(steps: Generator[object, None, _T]) -> _T:
@@ -464,9 +473,10 @@ class SlicedFit:
 
     def __init__(self, tracks: np.ndarray, config: PearlConfig | None = None,
                  rng: np.random.Generator | int | None = None,
-                 graph: Neighbourhood | None = None, deadline: float | None = None) -> None:
+                 graph: Neighbourhood | None = None, deadline: float | None = None,
+                 cameras: np.ndarray | None = None) -> None:
         self._steps = _steps(tracks, config or PearlConfig(), np.random.default_rng(rng), None,
-                             deadline, 0.0, True, graph)
+                             deadline, 0.0, True, graph, cameras=cameras)
         self.result: PearlResult | None = None
         self.steps_run = 0
         self._search: _Search | None = None
@@ -504,12 +514,13 @@ class SlicedFit:
 def _steps(tracks: np.ndarray, config: PearlConfig, rng: np.random.Generator,
            init: np.ndarray | None, deadline: float | None, init_cost: float, propose: bool,
            graph: Neighbourhood | None, suspects: np.ndarray | None = None,
-           init_share: float = 1.0) -> Generator[_Search | None, None, PearlResult]:
+           init_share: float = 1.0, cameras: np.ndarray | None = None
+           ) -> Generator[_Search | None, None, PearlResult]:
     """:func:`fit`'s steps: yields the search once set up, then None before each step
     (:class:`SlicedFit`); returns the result."""
     timings = {'setup': 0.0, 'propose': 0.0, 'expand': 0.0, 'refit': 0.0}
     with _timed(timings, 'setup'):
-        setting = _setting(tracks, config, rng, graph, suspects)
+        setting = _setting(tracks, config, rng, graph, suspects, cameras)
     if not init_cost >= 0:
         raise InputError(f'init_cost must be >= 0, got {init_cost!r}')
     if not 0.0 <= init_share <= 1.0:
@@ -573,8 +584,8 @@ def _timed(timings: dict[str, float], step: str) -> Iterator[None]:
         timings[step] += time.perf_counter() - start
 
 
-def assign(tracks: np.ndarray, result: PearlResult, config: PearlConfig | None = None
-           ) -> np.ndarray:
+def assign(tracks: np.ndarray, result: PearlResult, config: PearlConfig | None = None,
+           cameras: np.ndarray | None = None) -> np.ndarray:
     """Labels of further points by the models of a :func:`fit`: 0..K-1, or -1 (outlier).
 
     Each point of ``tracks`` (F, M, 2; the frames ``result`` was fitted over) goes to the model
@@ -582,10 +593,12 @@ def assign(tracks: np.ndarray, result: PearlResult, config: PearlConfig | None =
     less: the data term of the fit's energy alone, with no pair or label cost. ``config`` is
     the fit's (its model, noise floor and outlier threshold); the noise scale is
     ``result.scale``. Isolation is not judged here (it needs the points' neighbours), so every
-    point pays the outlier cost of a point that is not isolated.
+    point pays the outlier cost of a point that is not isolated. ``cameras``: the fit's.
     """
     config = config or PearlConfig()
     model = get_model(config.model, config.solver)
+    if cameras is not None:
+        model = WithStaticWorld(model, cameras)
     data = model.data(tracks)  # validates tracks
     out = np.full(data.shape[0], OUTLIER, dtype=np.int64)
     if result.params.shape[0] == 0 or data.shape[0] == 0:
@@ -715,9 +728,12 @@ def _outlier_cost(threshold: float, scale: float, dof: float, floor: float) -> f
 
 
 def _setting(tracks: np.ndarray, config: PearlConfig, rng: np.random.Generator,
-             graph: Neighbourhood | None = None, also: np.ndarray | None = None) -> _Setting:
+             graph: Neighbourhood | None = None, also: np.ndarray | None = None,
+             cameras: np.ndarray | None = None) -> _Setting:
     solver = config.solver
     model = get_model(config.model, solver)
+    if cameras is not None:
+        model = WithStaticWorld(model, cameras)
     data = model.data(tracks)  # validates tracks
     n = data.shape[0]
     if n < model.min_samples + 1:
@@ -756,11 +772,13 @@ def _setting(tracks: np.ndarray, config: PearlConfig, rng: np.random.Generator,
             counted = kept
     stretch = long_edge_stretch(tracks, edges, neighbours, config.long_edge_growth, solver,
                                 measured)
+    weights = edge_weights(misses, scale, config.smoothness, config.separation,
+                           config.contrast, config.unit_quantile, stretch, counted)
+    if cameras is not None:
+        weights = static_ties(weights, edges, data[:, -1], scale, solver.static_contrast)
     return _Setting(
         model=model, solver=solver, data=data, edges=edges,
-        weights=edge_weights(misses, scale, config.smoothness, config.separation,
-                             config.contrast, config.unit_quantile, stretch,
-                             counted),
+        weights=weights,
         neighbours=neighbours, scale=scale, floor=floor, ceiling=ceiling, dof=dof,
         outlier_cost=costs,
         label_cost=config.label_cost * model.label_cost_weight(data))
@@ -867,6 +885,12 @@ def _propose(search: _Search, config: PearlConfig, rng: np.random.Generator
         fresh = fresh[ok]
         search.add(np.repeat(fresh, levels.size, axis=0), np.tile(levels, fresh.shape[0]),
                    np.repeat(model.residuals(data, fresh), levels.size, axis=0))
+    fixed = getattr(model, 'fixed_hypotheses', None)
+    if fixed is not None:
+        yield None
+        known = fixed(data)
+        search.add(np.repeat(known, levels.size, axis=0), np.tile(levels, known.shape[0]),
+                   np.repeat(model.residuals(data, known), levels.size, axis=0))
 
 
 def _param_shape(model: MotionModel, data: np.ndarray) -> tuple[int, ...]:

@@ -93,6 +93,11 @@ class RobotScene:
     static_position: np.ndarray
     static_half_extents: np.ndarray
 
+    def camera(self, t: int) -> np.ndarray:
+        """The projection matrix (3, 4) of frame t: pixels from world points."""
+        to_camera = self.camera_rotation[t].T
+        return INTRINSICS @ np.hstack([to_camera, -to_camera @ self.camera_position[t][:, None]])
+
     def project(self, t: int, world: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Pixels (N, 2) and depths (N,) in m of world points (N, 3) seen from frame t."""
         cam = (world - self.camera_position[t]) @ self.camera_rotation[t]

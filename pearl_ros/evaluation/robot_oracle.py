@@ -20,7 +20,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from pearl_ros.core.errors import InputError
-from pearl_ros.datasets.robot import INTRINSICS, robot_scene, robot_stream
+from pearl_ros.core.models.ego import static_residuals
+from pearl_ros.datasets.robot import robot_scene, robot_stream
 from pearl_ros.online.window import SlidingWindow
 
 
@@ -51,37 +52,6 @@ class GroupReading:
     affine4_px: float
 
 
-def triangulate(cameras: np.ndarray, uv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Each track as one static point: RMS reprojection residual (px) and whether in front.
-
-    Parameters
-    ----------
-    cameras : (F, 3, 4) float64, projection matrices of the frames
-    uv : (F, N, 2) float64, the tracks, px
-
-    Returns
-    -------
-    residual : (N,) float64, RMS over frames of the reprojection error (px) of the point the
-        linear (DLT) triangulation of each track finds
-    in_front : (N,) bool, that point lies in front of every camera
-    """
-    if cameras.ndim != 3 or cameras.shape[1:] != (3, 4) or uv.ndim != 3 or uv.shape[2] != 2 \
-            or uv.shape[0] != cameras.shape[0] or cameras.shape[0] < 2:
-        raise InputError(f'need (F, 3, 4) cameras and (F, N, 2) tracks, F >= 2; got '
-                         f'{cameras.shape} and {uv.shape}')
-    # Each frame gives two rows per track: u P3 - P1 and v P3 - P2 (times X = 0).
-    rows = np.concatenate([uv[..., 0:1] * cameras[:, None, 2] - cameras[:, None, 0],
-                           uv[..., 1:2] * cameras[:, None, 2] - cameras[:, None, 1]], axis=0)
-    _, _, vt = np.linalg.svd(np.transpose(rows, (1, 0, 2)))
-    points = vt[:, -1]  # (N, 4) homogeneous
-    projected = np.einsum('fij,nj->fni', cameras, points)
-    depth = projected[..., 2] * np.sign(points[:, 3])
-    with np.errstate(divide='ignore', invalid='ignore'):
-        offset = projected[..., :2] / projected[..., 2:] - uv
-    residual = np.sqrt(np.mean(np.sum(np.square(offset), axis=2), axis=0))
-    return np.where(np.isfinite(residual), residual, np.inf), np.all(depth > 0, axis=0)
-
-
 def final_window(seed: int, window: int = 10, frames: int = 300, static_px: float = 2.0
                  ) -> list[GroupReading]:
     """Readings of the features spanning the last ``window`` frames of ``robot_stream(seed=seed,
@@ -99,11 +69,8 @@ def final_window(seed: int, window: int = 10, frames: int = 300, static_px: floa
     spanning = age == window
     uv, truth = coords[:, spanning], frame.truth[spanning]
     span = range(frames - window, frames)
-    cameras = np.stack([INTRINSICS @ np.hstack([scene.camera_rotation[t].T,
-                                                -scene.camera_rotation[t].T
-                                                @ scene.camera_position[t][:, None]])
-                        for t in span])
-    residual, in_front = triangulate(cameras, uv)
+    cameras = np.stack([scene.camera(t) for t in span])
+    residual, in_front = static_residuals(cameras, uv)
     trajectories = np.transpose(uv, (1, 0, 2)).reshape(uv.shape[1], -1)
     static = trajectories[truth == 0]
     readings = []

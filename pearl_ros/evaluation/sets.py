@@ -110,17 +110,20 @@ def _fit(tracks: np.ndarray, config: PearlConfig, seed: int) -> tuple[np.ndarray
 
 
 def _stream(frames: list[tuple[np.ndarray, np.ndarray, np.ndarray]], config: PearlConfig,
-            online: OnlineConfig) -> tuple[np.ndarray, np.ndarray, int, float, float]:
-    """Feed (ids, uv, truth) frames to an online segmenter: the final frame's labels and truth,
-    its motion count, the mean seconds per frame, and the mean misclassification (percent) over
-    the second half of the frames (outliers a group of their own, as in :func:`score`)."""
+            online: OnlineConfig, cameras: list[np.ndarray] | None = None
+            ) -> tuple[np.ndarray, np.ndarray, int, float, float]:
+    """Feed (ids, uv, truth) frames to an online segmenter (with each frame's projection
+    matrix, if ``cameras``): the final frame's labels and truth, its motion count, the mean
+    seconds per frame, and the mean misclassification (percent) over the second half of the
+    frames (outliers a group of their own, as in :func:`score`)."""
     from pearl_ros.online.segmenter import OnlineSegmenter
 
     segmenter = OnlineSegmenter(config, online)
     seconds, half = 0.0, []
     for t, (ids, uv, truth) in enumerate(frames):
         start = time.perf_counter()
-        result = segmenter.process(1_000_000_000 + t * FRAME_NS, ids, uv)
+        result = segmenter.process(1_000_000_000 + t * FRAME_NS, ids, uv,
+                                   None if cameras is None else cameras[t])
         seconds += time.perf_counter() - start
         if t >= len(frames) // 2:
             half.append(misclassification(result.labels, truth))
@@ -179,16 +182,22 @@ def _hopkins_outliers(task: Task) -> Score:
 
 def _robot(task: Task) -> Score:
     """A robot-like synthetic stream (:mod:`pearl_ros.datasets.robot`) of seed ``source``,
-    final frame scored, its outlier tracks a group of their own."""
+    final frame scored, its outlier tracks a group of their own; mode ``cameras`` gives the
+    segmenter each frame's true camera, as odometry would."""
     import dataclasses
 
-    from pearl_ros.datasets.robot import robot_stream
+    from pearl_ros.datasets.robot import robot_scene, robot_stream
 
     seed = int(task.source)
     frames = [(f.ids, f.uv, f.truth) for f in robot_stream(seed=seed)]
     online = dataclasses.replace(task.online, seed=task.seed)
-    labels, truth, found, seconds, half = _stream(frames, task.config, online)
-    return score('robot_synthetic', f'seed{seed}', labels, truth, seconds, found, half_pct=half)
+    cameras = None
+    if task.mode == 'cameras':
+        scene = robot_scene(len(frames), seed)
+        cameras = [scene.camera(t) for t in range(len(frames))]
+    labels, truth, found, seconds, half = _stream(frames, task.config, online, cameras)
+    name = 'robot_synthetic_cameras' if cameras is not None else 'robot_synthetic'
+    return score(name, f'seed{seed}', labels, truth, seconds, found, half_pct=half)
 
 
 _RUNNERS = {

@@ -32,6 +32,7 @@ from pearl_ros.core.config import PearlConfig, SolverSettings, default_solver
 from pearl_ros.core.errors import InputError
 from pearl_ros.core.labels import OUTLIER, num_motions
 from pearl_ros.core.models import get_model
+from pearl_ros.core.models.ego import is_static, static_residuals
 from pearl_ros.core.neighbourhood import Neighbourhood, neighbourhood
 from pearl_ros.core.pearl import (
     PearlResult,
@@ -43,7 +44,7 @@ from pearl_ros.core.pearl import (
 )
 from pearl_ros.online.config import OnlineConfig
 from pearl_ros.online.isolation import LEAST_SPAN, IsolationHistory, persistent_suspects
-from pearl_ros.online.window import SlidingWindow, lookup
+from pearl_ros.online.window import CAMERA_FRAMES, SlidingWindow, lookup
 
 _TWO_VIEW = ('fundamental', 'homography')
 # A budgeted cold start is the unbudgeted one (every round of num_proposals) run a budget's
@@ -51,6 +52,10 @@ _TWO_VIEW = ('fundamental', 'homography')
 # budgets from its start: its final labels come a few frames late, and no frame waits for all
 # of it. (One round in 4 budgets cost the streams 0.4-2 points: docs/experiments.md.)
 COLD_BUDGETS = 8
+# With cameras: a young track whose static residual is within this many times the static
+# world's noise level is given the static world's motion (3: a track of it under Gaussian
+# noise lies within in all but a few cases).
+STATIC_YOUNG = 3.0
 
 
 @dataclass(frozen=True)
@@ -144,7 +149,22 @@ class OnlineSegmenter:
                 self._rng = np.random.default_rng(online.seed)
             self.online = online
 
-    def process(self, stamp_ns: int, ids: np.ndarray, uv: np.ndarray) -> FrameResult:
+    def set_camera(self, stamp_ns: int, camera: np.ndarray, tolerance_ns: int = 0) -> bool:
+        """Give a frame of the window that came without its camera the ``camera`` (3, 4) of
+        stamp ``stamp_ns`` (a robot's pose often comes after its image's features): the
+        frame nearest it, within ``tolerance_ns``. Whether a frame took it.
+
+        Raises
+        ------
+        InputError
+            On a camera that is not a finite (3, 4) projection matrix.
+        """
+        checked = _check_camera(camera)
+        assert checked is not None
+        return self._window.set_camera(int(stamp_ns), checked, int(tolerance_ns))
+
+    def process(self, stamp_ns: int, ids: np.ndarray, uv: np.ndarray,
+                camera: np.ndarray | None = None) -> FrameResult:
         """Label one frame.
 
         Parameters
@@ -154,6 +174,12 @@ class OnlineSegmenter:
         ids : (N,) int, tracker ids, unique within the frame
         uv : (N, 2) float, pixels; features with a NaN or inf coordinate are labelled -1 and
             treated as not seen in this frame
+        camera : (3, 4) float, optional
+            The frame's projection matrix (pixels from world: intrinsics times the world-to-
+            camera pose), where the robot knows it (or later, :meth:`set_camera`). Over windows
+            where ``CAMERA_FRAMES`` frames or more have theirs, the multi-frame fits take the
+            static world as a motion of known parameters (:func:`pearl_ros.core.pearl.fit`'s
+            ``cameras``); two-view fits do not use them.
 
         Raises
         ------
@@ -163,6 +189,7 @@ class OnlineSegmenter:
         """
         start = time.perf_counter()
         stamp_ns, ids, uv = _check_frame(stamp_ns, ids, uv)
+        camera = _check_camera(camera)
         last = self._window.last_stamp
         reset = last is not None and stamp_ns < last
         if last is not None and stamp_ns == last:
@@ -175,7 +202,7 @@ class OnlineSegmenter:
         # Features in id order: the proposals sample by position, so that labels must not depend
         # on the order a tracker lists its features in.
         seen = seen[np.argsort(ids[seen], kind='stable')]
-        keys = self._window.push(stamp_ns, ids[seen], uv[seen])
+        keys = self._window.push(stamp_ns, ids[seen], uv[seen], camera)
         coords, age = self._window.history(keys)
 
         span = _span(age, self.online.min_coverage)
@@ -185,8 +212,11 @@ class OnlineSegmenter:
         motion_labels = np.full(keys.size, OUTLIER, dtype=np.int64)
         if fitted.size > get_model(model_name).min_samples:
             tracks = coords[-span:, fitted]
+            cameras = None
             if model_name in _TWO_VIEW:
                 tracks = tracks[[0, -1]]
+            else:
+                cameras = self._window.cameras(span)
             fitted_keys = keys[fitted]
             prior = lookup(self._labelled_keys, self._labelled_motions, fitted_keys, OUTLIER)
             chosen = _chosen(fitted_keys, self.online.max_fitted)
@@ -196,24 +226,29 @@ class OnlineSegmenter:
             if self._cold is not None or (not warm and self.online.warm_start
                                           and self.online.budget_ms > 0):
                 return self._cold_slice(tracks[:, pick], fitted_keys[pick], model_name, keys,
-                                        seen, ids.size, stamp_ns, reset, start)
+                                        seen, ids.size, stamp_ns, reset, start, cameras)
             result, config = self._fit(tracks[:, pick], fitted_keys[pick], model_name,
-                                       prior[pick], warm, start)
+                                       prior[pick], warm, start, cameras)
             segments = result.labels
             if chosen is not None:
                 rest = np.ones(fitted.size, dtype=bool)
                 rest[chosen] = False
                 segments = np.empty(fitted.size, dtype=np.int64)
                 segments[chosen] = result.labels
-                segments[rest] = assign(tracks[:, rest], result, config)
+                segments[rest] = assign(tracks[:, rest], result, config, cameras)
             motion_labels[fitted] = self._identify(segments, prior)
             young = np.setdiff1d(np.arange(keys.size), fitted)
             solver = self.config.solver
             tracked = young[age[young] >= solver.young_min_age] \
                 if model_name not in _TWO_VIEW else young[:0]
             newborn = np.setdiff1d(young, tracked)
+            known = None
+            if cameras is not None and chosen is None:
+                known = _static_young(coords, age, tracked, cameras, result,
+                                      motion_labels[fitted])
             motion_labels[tracked] = _nearest_subspace(coords, age, fitted,
-                                                       motion_labels[fitted], tracked, solver)
+                                                       motion_labels[fitted], tracked, solver,
+                                                       known)
             motion_labels[newborn] = _vote(uv[seen], fitted, motion_labels[fitted], newborn,
                                            self.online.neighbours)
         else:
@@ -236,7 +271,7 @@ class OnlineSegmenter:
 
     def _cold_slice(self, tracks: np.ndarray, fitted_keys: np.ndarray, model_name: str,
                     keys: np.ndarray, seen: np.ndarray, n: int, stamp_ns: int, reset: bool,
-                    start: float) -> FrameResult:
+                    start: float, cameras: np.ndarray | None = None) -> FrameResult:
         """A frame of a budgeted cold start: the fit of the frame it began on (``tracks`` of
         ``fitted_keys``, when none is under way) goes on for a budget's worth. The tracks it
         fits get the motions of its labelling so far (every feature -1 before its first move);
@@ -247,7 +282,8 @@ class OnlineSegmenter:
             config = self._config(model_name, noise, 'cold')
             order = np.argsort(fitted_keys, kind='stable')
             self._cold = _ColdStart(
-                SlicedFit(tracks, config, self._rng, graph, start + COLD_BUDGETS * budget),
+                SlicedFit(tracks, config, self._rng, graph, start + COLD_BUDGETS * budget,
+                          cameras=cameras),
                 fitted_keys[order], order, model_name, tracks.shape[0])
         cold = self._cold
         result = cold.fit.advance(start + budget)
@@ -271,9 +307,11 @@ class OnlineSegmenter:
         return self.online.two_view_model if span == 2 else self.config.model
 
     def _fit(self, tracks: np.ndarray, keys: np.ndarray, model_name: str, prior: np.ndarray,
-             warm: bool, start: float) -> tuple[PearlResult, PearlConfig]:
-        """Segment ``tracks`` (of the tracks ``keys``); returns the fit (labels 0..K-1 per
-        track, -1 outliers) and the configuration it ran with."""
+             warm: bool, start: float, cameras: np.ndarray | None = None
+             ) -> tuple[PearlResult, PearlConfig]:
+        """Segment ``tracks`` (of the tracks ``keys``; their frames' ``cameras`` where known);
+        returns the fit (labels 0..K-1 per track, -1 outliers) and the configuration it ran
+        with."""
         # Fresh proposals on a cold fit and on every propose_every-th warm one; the warm frames
         # between only relabel and refit the motions already there, unless the energy per
         # feature rose since the last proposals (a motion starting, say): then the next frame
@@ -302,7 +340,7 @@ class OnlineSegmenter:
         result = fit(tracks, config, self._rng, init=init, deadline=deadline,
                      init_cost=self.online.temporal_cost if warm else 0.0, propose=propose,
                      graph=graph, suspects=suspects,
-                     init_label_share=self.online.continued_label_cost)
+                     init_label_share=self.online.continued_label_cost, cameras=cameras)
         per_feature = result.energy / max(tracks.shape[1], 1)
         if propose:
             self._quiet, self._energy_ref = 0, per_feature
@@ -423,6 +461,45 @@ def _check_frame(stamp_ns: int, ids: np.ndarray, uv: np.ndarray
     return stamp, ids, uv
 
 
+def _check_camera(camera: np.ndarray | None) -> np.ndarray | None:
+    if camera is None:
+        return None
+    camera = np.asarray(camera, dtype=np.float64)
+    if camera.shape != (3, 4) or not np.all(np.isfinite(camera)):
+        raise InputError(f'camera must be a finite (3, 4) projection matrix, got shape '
+                         f'{camera.shape}')
+    if not abs(np.linalg.det(camera[:, :3])) > 1e-12 * float(np.abs(camera).max()) ** 3:
+        raise InputError('camera must be a projection matrix of a finite camera (its left '
+                         '3 x 3 block invertible)')
+    return camera
+
+
+def _static_young(coords: np.ndarray, age: np.ndarray, young: np.ndarray,
+                  cameras: np.ndarray, result: PearlResult, fitted_labels: np.ndarray
+                  ) -> tuple[int, np.ndarray] | None:
+    """The static world as :func:`_nearest_subspace` offers it to the ``young`` tracks: its
+    motion number in the fit ``result`` (numbered by ``fitted_labels``) and each young track's
+    squared distance to it, the sum over the track's own frames of its squared reprojection
+    error as a static point (the units of a subspace distance); infinite where the static world
+    does not explain it (a point behind the cameras, or beyond ``STATIC_YOUNG`` times the
+    static world's noise level). None when the fit holds no static world."""
+    static = [k for k in range(result.num_models) if is_static(result.params[k])]
+    members = np.flatnonzero(result.labels == static[0]) if static else np.empty(0, int)
+    if members.size == 0 or young.size == 0:
+        return None
+    limit = STATIC_YOUNG * float(result.sigmas[static[0]])
+    distance_sq = np.full(young.size, np.inf)
+    for frames in np.unique(age[young]):
+        rows = np.flatnonzero(age[young] == frames)
+        own = cameras[-frames:]
+        if np.count_nonzero(~np.isnan(own).all(axis=(1, 2))) < min(CAMERA_FRAMES, frames):
+            continue
+        residual, in_front = static_residuals(own, coords[-frames:, young[rows]])
+        distance_sq[rows] = np.where(in_front & (residual <= limit),
+                                     frames * np.square(residual), np.inf)
+    return int(fitted_labels[members[0]]), distance_sq
+
+
 def _chosen(keys: np.ndarray, most: int) -> np.ndarray | None:
     """Indices (sorted) of the tracks ``keys`` the optimiser segments: None for all of them, or
     the ``most`` whose keys hash lowest (``most`` > 0). A hash rather than the image keeps the
@@ -446,7 +523,8 @@ def _span(age: np.ndarray, coverage: float) -> int:
 
 def _nearest_subspace(coords: np.ndarray, age: np.ndarray, fitted: np.ndarray,
                       fitted_labels: np.ndarray, young: np.ndarray,
-                      settings: SolverSettings | None = None) -> np.ndarray:
+                      settings: SolverSettings | None = None,
+                      known: tuple[int, np.ndarray] | None = None) -> np.ndarray:
     """Labels of ``young`` tracks (each ``age`` < the fitted span): the motion whose members'
     trajectories over the young track's own frames span the affine subspace nearest to it.
 
@@ -465,6 +543,10 @@ def _nearest_subspace(coords: np.ndarray, age: np.ndarray, fitted: np.ndarray,
     fitted, fitted_labels : (M,) int, the fitted tracks and their motion numbers (-1 outlier)
     young : (Y,) int, tracks to label, each with an ``age`` of at least 2
     settings : SolverSettings, optional
+    known : (motion, (Y,) float), optional
+        A motion whose model is known (the static world seen by known cameras), with each
+        young track's squared distance to it (infinite where it does not explain the track):
+        the known model stands in for the motion's subspace.
     """
     settings = settings or default_solver()
     out = np.full(young.size, OUTLIER, dtype=np.int64)
@@ -496,7 +578,11 @@ def _nearest_subspace(coords: np.ndarray, age: np.ndarray, fitted: np.ndarray,
         inside = np.einsum('knd,kde->kne', offset, basis)
         distance_sq = np.einsum('knd,knd->kn', offset, offset) - np.einsum('kne,kne->kn',
                                                                            inside, inside)
-        out[rows] = motions[np.argmin(distance_sq, axis=0)]
+        if known is not None and np.any(motions == known[0]):
+            distance_sq[np.flatnonzero(motions == known[0])[0]] = known[1][rows]
+        nearest = np.argmin(distance_sq, axis=0)
+        out[rows] = np.where(np.isfinite(distance_sq[nearest, np.arange(rows.size)]),
+                             motions[nearest], OUTLIER)
     return out
 
 

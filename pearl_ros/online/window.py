@@ -10,9 +10,13 @@ the window and the window never holds more than W frames, however long the strea
 from __future__ import annotations
 
 from collections import deque
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
+
+# Frames of a window that must have their cameras for them to be used: fewer constrain a
+# static point too little (two frames leave one residual direction per track).
+CAMERA_FRAMES = 3
 
 
 @dataclass(frozen=True)
@@ -22,6 +26,7 @@ class WindowFrame:
     stamp_ns: int
     keys: np.ndarray  # (N,) int64, sorted
     uv: np.ndarray  # (N, 2) float64, pixels, rows in the order of keys
+    camera: np.ndarray | None = None  # (3, 4) float64, projection matrix, where known
 
 
 class SlidingWindow:
@@ -57,7 +62,8 @@ class SlidingWindow:
         self._frames.clear()
         self._ids = self._id_keys = np.empty(0, dtype=np.int64)
 
-    def push(self, stamp_ns: int, ids: np.ndarray, uv: np.ndarray) -> np.ndarray:
+    def push(self, stamp_ns: int, ids: np.ndarray, uv: np.ndarray,
+             camera: np.ndarray | None = None) -> np.ndarray:
         """Append a frame; returns the track key of each feature, in input order.
 
         Parameters
@@ -65,6 +71,7 @@ class SlidingWindow:
         stamp_ns : int, nanoseconds
         ids : (N,) int64, unique tracker ids
         uv : (N, 2) float64, pixels, finite
+        camera : (3, 4) float64, optional, the frame's projection matrix (pixels from world)
         """
         ids = np.asarray(ids, dtype=np.int64)
         keys = lookup(self._ids, self._id_keys, ids, -1)
@@ -74,8 +81,32 @@ class SlidingWindow:
         by_id = np.argsort(ids, kind='stable')
         self._ids, self._id_keys = ids[by_id], keys[by_id]
         order = np.argsort(keys, kind='stable')
-        self._frames.append(WindowFrame(stamp_ns, keys[order], uv[order]))
+        self._frames.append(WindowFrame(stamp_ns, keys[order], uv[order], camera))
         return keys
+
+    def cameras(self, frames: int) -> np.ndarray | None:
+        """The projection matrices ``(frames, 3, 4)`` of the newest ``frames`` frames, oldest
+        first, NaN for a frame that came without one; None unless at least
+        ``CAMERA_FRAMES`` of them (and two at the least) came with theirs."""
+        newest = list(self._frames)[-frames:]
+        known = [frame.camera is not None for frame in newest]
+        if len(newest) < frames or sum(known) < min(CAMERA_FRAMES, frames) or sum(known) < 2:
+            return None
+        return np.stack([np.full((3, 4), np.nan) if frame.camera is None else frame.camera
+                         for frame in newest])
+
+    def set_camera(self, stamp_ns: int, camera: np.ndarray, tolerance_ns: int = 0) -> bool:
+        """Give the frame nearest ``stamp_ns`` (within ``tolerance_ns``) that has no camera
+        yet its ``camera`` (3, 4): a pose that came after its frame. Whether one took it."""
+        if not self._frames:
+            return False
+        gaps = [abs(frame.stamp_ns - stamp_ns) for frame in self._frames]
+        at = int(np.argmin(gaps))
+        frame = self._frames[at]
+        if gaps[at] > tolerance_ns or frame.camera is not None:
+            return False
+        self._frames[at] = replace(frame, camera=camera)
+        return True
 
     def history(self, keys: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The window's coordinates of tracks ``keys`` (all present in the newest frame).

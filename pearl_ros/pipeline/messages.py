@@ -26,6 +26,8 @@ from pearl_ros.bagio import cdr, decode, encode
 from pearl_ros.bagio.reader import TYPESTORE, read_features
 from pearl_ros.core.errors import InputError, one_line
 from pearl_ros.online.segmenter import FrameResult, OnlineSegmenter
+from pearl_ros.pipeline import poses
+from pearl_ros.pipeline.poses import PoseBuffer
 from pearl_ros.pipeline.settings import Settings
 
 # Kinds of skipped message, each with words of the reasons that belong to it (first match).
@@ -170,6 +172,8 @@ class MessagePipeline:
         self._settings = settings or Settings()
         self._types = types or encode.MessageTypes.from_typestore(TYPESTORE)
         self._segmenter = OnlineSegmenter(*self._settings.configs)
+        self._poses = PoseBuffer(self._pose_tolerance_ns())
+        self.poses = 0  # pose messages taken
 
     @property
     def settings(self) -> Settings:
@@ -183,6 +187,29 @@ class MessagePipeline:
         """New settings from the next message on; the window is kept."""
         self._segmenter.reconfigure(*settings.configs)
         self._settings = settings
+        self._poses.tolerance_ns = self._pose_tolerance_ns()
+
+    def _pose_tolerance_ns(self) -> int:
+        return int(round(self._settings.node.pose_tolerance_ms * 1e6))
+
+    def add_pose(self, msg: Any) -> Skipped | None:
+        """Take a camera pose (``pose_type``; rclpy's or rosbags' message): the feature frame
+        of the nearest stamp gets its camera, whether it came before the pose or comes after.
+        The :class:`Skipped` of a pose that cannot be read (a zero quaternion, a non-finite
+        position), else None."""
+        node = self._settings.node
+        try:
+            position, orientation = poses.read_pose(msg, node.pose_type)
+            intrinsics = poses.intrinsics_matrix(node.camera_fx, node.camera_fy,
+                                                 node.camera_cx, node.camera_cy)
+            camera = poses.camera_matrix(position, orientation, intrinsics)
+            stamp = decode.stamp_ns(msg.header)
+        except (InputError, AttributeError, TypeError, ValueError) as err:
+            return Skipped('pose', f'pose: {one_line(err, None)}', True)
+        self._poses.add(stamp, camera)
+        self._segmenter.set_camera(stamp, camera, self._poses.tolerance_ns)
+        self.poses += 1
+        return None
 
     def reset(self) -> None:
         """Empty the window: the next message starts afresh."""
@@ -240,7 +267,8 @@ class MessagePipeline:
         segmented = encode.subsample_mask(ids, node.max_features)
         stamp = decode.stamp_ns(msg.header)
         try:
-            result = self._segmenter.process(stamp, ids[segmented], uv[segmented])
+            camera = self._poses.find(stamp) if node.pose_topic else None
+            result = self._segmenter.process(stamp, ids[segmented], uv[segmented], camera)
         except InputError as err:  # a stamp equal to the last: the window is unchanged
             return Skipped.because(err, malformed=False)
         labels = np.full(ids.size, encode.UNLABELLED, dtype=np.int64)

@@ -33,6 +33,7 @@ import numpy as np
 from pearl_ros.bagio import cdr, encode
 from pearl_ros.bagio.reader import (
     POINTCLOUD2,
+    TYPESTORE,
     CopiedMessage,
     FeatureStream,
     open_feature_stream,
@@ -41,6 +42,7 @@ from pearl_ros.bagio.writer import is_bag, open_output_bag
 from pearl_ros.core.errors import BagError, InputError
 from pearl_ros.online.config import setting_values
 from pearl_ros.pipeline.messages import Labelled, MessagePipeline, Skipped
+from pearl_ros.pipeline.poses import POSE_TYPES
 from pearl_ros.pipeline.settings import PIPELINE_NAMES, Settings
 
 INPUT_TOPIC = '/feature_tracker/feature'
@@ -97,6 +99,8 @@ class ReplayStats:
     skipped: list[dict[str, Any]] = field(default_factory=list)
     copied: dict[str, int] = field(default_factory=dict)
     not_copied: int = 0
+    poses: int = 0  # camera poses taken from pose_topic
+    bad_poses: int = 0  # camera poses that could not be read or used
     messages: int = 0
     wall_s: float = 0.0
 
@@ -112,6 +116,8 @@ class ReplayStats:
             'resets': int(sum(row['reset'] for row in self.frames)),
             'copied': dict(self.copied),
             'not_copied': self.not_copied,
+            'poses': self.poses,
+            'bad_poses': self.bad_poses,
         }
 
     def summary(self) -> dict[str, Any]:
@@ -187,7 +193,10 @@ def replay(
     warn = warn or (lambda index, skip: None)
     start = time.perf_counter()
     pipeline = MessagePipeline(settings.settings, MESSAGE_TYPES)
-    copy_topics = (settings.truth_topic,) if settings.truth_topic else ()
+    copy_topics: tuple[str, ...] = (settings.truth_topic,) if settings.truth_topic else ()
+    pose_topic = settings.settings.node.pose_topic
+    if pose_topic:  # read for the pipeline, and copied as the truth is
+        copy_topics += (pose_topic,)
     with open_feature_stream(in_bag, settings.input_topic, copy_topics) as stream:
         stats = ReplayStats(
             input=str(in_bag), output=str(out_bag), input_topic=settings.input_topic,
@@ -221,8 +230,11 @@ def _run(stream: FeatureStream, pipeline: MessagePipeline, settings: ReplaySetti
          progress: Callable[[int, int], None] | None) -> None:
     """Every message of ``stream`` through ``pipeline`` into ``out``, in recording order."""
     done = 0
+    node = settings.settings.node
     for item in stream:
         if isinstance(item, CopiedMessage):
+            if item.topic == node.pose_topic:
+                _take_pose(item, pipeline, stats, warn)
             _copy(item, out, stats, warn)
             continue
         if item.msg is None:
@@ -233,6 +245,31 @@ def _run(stream: FeatureStream, pipeline: MessagePipeline, settings: ReplaySetti
         done += 1
         if progress is not None:
             progress(done, stream.count)  # counts feature messages only
+
+
+def _take_pose(item: CopiedMessage, pipeline: MessagePipeline, stats: ReplayStats,
+               warn: WarnCallback) -> None:
+    """Hand a recorded camera pose to the pipeline; count it, or warn about it."""
+    node = pipeline.settings.node
+    expected = POSE_TYPES[node.pose_type]
+    skip: Skipped | None
+    if item.cdr is None:
+        skip = Skipped('pose', f'pose: {item.error}', True)
+    elif item.msgtype != expected:
+        skip = Skipped('pose', f'pose: {node.pose_topic} carries {item.msgtype}, not '
+                       f'{expected} (pose_type {node.pose_type})', True)
+    else:
+        try:
+            msg = TYPESTORE.deserialize_cdr(item.cdr, item.msgtype)
+        except Exception as err:  # rosbags raises several kinds on damaged bytes
+            skip = Skipped('pose', f'pose: {cdr.unreadable(item.msgtype, err)}', True)
+        else:
+            skip = pipeline.add_pose(msg)
+    if skip is None:
+        stats.poses += 1
+        return
+    stats.bad_poses += 1
+    warn(-1, skip)
 
 
 def _check_topics(settings: ReplaySettings) -> None:

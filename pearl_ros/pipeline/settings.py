@@ -32,6 +32,7 @@ NODE_FQN = '/' + NODE_NAME  # the node's fully qualified name when nothing remap
 MSG_TYPES = ('PointCloud', 'PointCloud2')
 QOS_CHOICES = ('sensor_data', 'reliable')
 QUEUE_POLICIES = ('newest', 'all')
+POSE_CHOICES = ('odometry', 'pose_stamped')
 _INT64 = 2**63 - 1
 
 # Parameters that rclpy declares on every node itself: a node's parameter file may set them.
@@ -79,15 +80,36 @@ class NodeConfig:
                             'each image is matched to the feature message of the same stamp '
                             'and published on image_labels (bgr8, the features as dots in '
                             "their motion's colour); empty = off")
+    pose_topic: str = spec('', "the camera's pose in a fixed world frame, per frame (a robot's "
+                           'odometry, such as VINS\' camera_pose): the pose of its optical frame '
+                           '(z forward, x right, y down), of type pose_type; with camera_fx, '
+                           'camera_fy, camera_cx, camera_cy, the static world becomes a motion '
+                           'of known parameters; empty = off')
+    pose_type: str = spec('odometry', 'message type on pose_topic: odometry '
+                          '(nav_msgs/msg/Odometry) or pose_stamped '
+                          '(geometry_msgs/msg/PoseStamped)', choices=POSE_CHOICES)
+    pose_tolerance_ms: float = spec(10.0, 'ms, the most a pose\'s stamp may differ from its '
+                                    "feature frame's", low=0.0, high=1e6)
+    camera_fx: float = spec(0.0, 'px, focal length along x of the camera whose features are '
+                            'segmented (needed with pose_topic)', low=0.0, high=1e9)
+    camera_fy: float = spec(0.0, 'px, focal length along y (needed with pose_topic)',
+                            low=0.0, high=1e9)
+    camera_cx: float = spec(0.0, 'px, principal point x', low=-1e9, high=1e9)
+    camera_cy: float = spec(0.0, 'px, principal point y', low=-1e9, high=1e9)
 
     def __post_init__(self) -> None:
         check_fields(self)
+        if self.pose_topic and not (self.camera_fx > 0 and self.camera_fy > 0):
+            raise InputError('pose_topic needs the camera intrinsics: camera_fx and camera_fy '
+                             '> 0 (and camera_cx, camera_cy), in the pixels of the features')
 
 
 NODE_SPECS: tuple[ParameterSpec, ...] = parameter_specs(NodeConfig)
 NODE_NAMES = tuple(item.name for item in NODE_SPECS)
 # The node parameters the per-message pipeline reads (pearl_replay applies them too).
-PIPELINE_NAMES = ('layout', 'camera_id', 'max_features', 'background_motion')
+PIPELINE_NAMES = ('layout', 'camera_id', 'max_features', 'background_motion', 'pose_topic',
+                  'pose_type', 'pose_tolerance_ms', 'camera_fx', 'camera_fy', 'camera_cx',
+                  'camera_cy')
 
 
 def _default_configs() -> tuple[Any, ...]:

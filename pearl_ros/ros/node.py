@@ -18,6 +18,15 @@ Topics (names relative to the node's namespace unless absolute)
     small buffer (:class:`StampMatcher`); one that finds no partner is dropped and counted.
 ``/diagnostics`` (out)
     ``diagnostic_msgs/msg/DiagnosticArray`` every ``diagnostics_period`` s.
+``pose_topic`` (in, when the parameter names one)
+    The camera's pose in a fixed world frame (its optical frame: z forward, x right, y down),
+    ``nav_msgs/msg/Odometry`` or ``geometry_msgs/msg/PoseStamped`` (parameter ``pose_type``),
+    such as VINS' ``camera_pose``; with the intrinsics ``camera_fx``, ``camera_fy``,
+    ``camera_cx``, ``camera_cy`` of the features' pixels. Each pose goes to the feature frame
+    of the nearest stamp (within ``pose_tolerance_ms``), whether it comes before or after it
+    (:class:`~pearl_ros.pipeline.poses.PoseBuffer`); the static world is then a motion of known
+    parameters (:mod:`pearl_ros.core.models.ego`). Poses wait for the worker, which takes them
+    before its next frame.
 
 Service ``~/reset`` (``std_srvs/srv/Trigger``) empties the window.
 
@@ -64,6 +73,8 @@ from typing import Any
 
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray
+from geometry_msgs.msg import PoseStamped
+from nav_msgs.msg import Odometry
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.event_handler import SubscriptionEventCallbacks
 from rclpy.exceptions import NameValidationException
@@ -86,6 +97,8 @@ OUTPUT_DEPTH = 10  # messages, keep-last depth of the (reliable) outputs
 # Images, and label results, waiting for their partner of the same stamp (each kind): a tracker
 # answers an image within a frame or two, so 30 outlasts any normal delay.
 MATCH_DEPTH = 30
+# Poses waiting for the worker: a second of 200 Hz odometry (the oldest go first).
+POSE_BACKLOG = 200
 
 
 def input_qos(kind: str, depth: int) -> QoSProfile:
@@ -117,6 +130,8 @@ class Stats:
     errors: int = 0  # unexpected exceptions (a bug), the node carried on
     mismatched_publishers: int = 0  # publishers of another type on `features`, last check
     images: int = 0  # received on image_topic
+    poses: int = 0  # camera poses taken from pose_topic
+    bad_poses: int = 0  # unreadable poses (zero quaternion, non-finite position)
     annotated: int = 0  # image_labels published
     bad_images: int = 0  # unsupported encoding, or step / data that do not fit
     incompatible_qos: int = 0  # publishers whose QoS the subscription cannot match
@@ -294,6 +309,11 @@ class PearlNode(Node):
         self._overlay: Overlay | None = None
         if node.image_topic:
             self._subscribe_images(node)
+        # Poses wait here for the worker, which hands them to the pipeline before its next
+        # frame: the executor's thread never waits for a frame being segmented.
+        self._pending_poses: deque[Any] = deque(maxlen=POSE_BACKLOG)
+        if node.pose_topic:
+            self._subscribe_poses(node)
         self.add_pre_set_parameters_callback(_ints_as_floats)
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self._timer = self.create_timer(node.diagnostics_period, self._on_timer)
@@ -322,6 +342,41 @@ class PearlNode(Node):
         self._matcher = StampMatcher(MATCH_DEPTH)
         self.get_logger().info(f'drawing labels on {self._image_sub.topic_name} into '
                                f'{self._image_pub.topic_name}')
+
+    def _subscribe_poses(self, node: pipeline_settings.NodeConfig) -> None:
+        """The ``pose_topic`` subscription; InputError for a bad name."""
+        kind = Odometry if node.pose_type == 'odometry' else PoseStamped
+        try:
+            # Reliable, as odometry is published (VINS, robot_localization): a best-effort
+            # subscriber takes both.
+            self._pose_sub = self.create_subscription(
+                kind, node.pose_topic, self._on_pose,
+                QoSProfile(depth=POSE_BACKLOG, reliability=ReliabilityPolicy.RELIABLE))
+        except NameValidationException as err:
+            self.destroy_node()
+            reason = str(err).splitlines()[0].rstrip(':').split(': ', 1)[-1]
+            raise InputError(f'pose_topic {node.pose_topic!r} is not a valid topic name: '
+                             f'{reason}') from err
+        self.get_logger().info(f'taking camera poses ({node.pose_type}) from '
+                               f'{self._pose_sub.topic_name}')
+
+    def _on_pose(self, msg: Any) -> None:
+        self._pending_poses.append(msg)
+
+    def _take_poses(self) -> None:
+        """Hand the poses that came since the last frame to the pipeline (under
+        ``_pipeline_lock``); count them, and warn about unreadable ones."""
+        taken = bad = 0
+        while self._pending_poses:
+            skip = self._pipeline.add_pose(self._pending_poses.popleft())
+            taken += skip is None
+            if skip is not None:
+                bad += 1
+                self._warn('pose', f'{self.settings.node.pose_type} message {skip.line}')
+        if taken or bad:
+            with self._lock:
+                self.stats.poses += taken
+                self.stats.bad_poses += bad
 
     @property
     def settings(self) -> pipeline_settings.Settings:
@@ -372,6 +427,7 @@ class PearlNode(Node):
         """
         msg = self._pipeline.deserialize(raw, self._type_name)
         with self._pipeline_lock:
+            self._take_poses()
             out = msg if isinstance(msg, Skipped) else self._pipeline.process(msg)
             with self._lock:
                 self.stats.window = self._pipeline.frames_in_window
@@ -610,6 +666,8 @@ class PearlNode(Node):
                 'internal errors': stats.errors,
                 'publishers of another type': stats.mismatched_publishers,
                 'publishers with incompatible QoS': stats.incompatible_qos,
+                **({'camera poses taken': stats.poses, 'camera poses refused': stats.bad_poses}
+                   if self.settings.node.pose_topic else {}),
                 **image_values,
             }
             stats.period_start, stats.period_received, stats.period_problems = now, 0, 0

@@ -320,9 +320,9 @@ def test_a_budgeted_cold_start_draws_what_the_unbudgeted_one_draws(monkeypatch):
         drawn.append((config.num_proposals, config.rounds, kwargs['propose']))
         return real(tracks, config, rng, **kwargs)
 
-    def sliced_spy(tracks, config, rng, graph, deadline):
+    def sliced_spy(tracks, config, rng, graph, deadline, **kwargs):
         drawn.append((config.num_proposals, config.rounds, True))
-        return real_sliced(tracks, config, rng, graph, deadline)
+        return real_sliced(tracks, config, rng, graph, deadline, **kwargs)
 
     monkeypatch.setattr(module, 'fit', spy)
     monkeypatch.setattr(module, 'SlicedFit', sliced_spy)

@@ -1,0 +1,138 @@
+"""Camera poses from a robot's odometry, as the segmenter takes them: projection matrices.
+
+A robot that knows where its camera is (visual-inertial odometry such as VINS' ``camera_pose``,
+wheel odometry composed with the camera's mounting) publishes it as ``nav_msgs/msg/Odometry``
+or ``geometry_msgs/msg/PoseStamped``: the pose of the camera's optical frame (z forward, x
+right, y down, REP 103's ``_optical`` frames) in a fixed world frame. With the camera's
+intrinsics (pixels from the optical frame), each pose is one projection matrix
+``K [R^T | -R^T c]``, where ``R`` and ``c`` are the camera's orientation and position in the
+world. Poses and feature frames meet by stamp (:class:`PoseBuffer`).
+
+ROS-free: messages are read by attribute (rclpy's and rosbags' alike).
+"""
+
+from __future__ import annotations
+
+import bisect
+from collections import deque
+from typing import Any
+
+import numpy as np
+
+from pearl_ros.core.errors import InputError
+
+POSE_TYPES = {'odometry': 'nav_msgs/msg/Odometry', 'pose_stamped': 'geometry_msgs/msg/PoseStamped'}
+# Poses kept for frames to find theirs: a second of 200 Hz odometry.
+POSE_CAPACITY = 200
+
+
+def intrinsics_matrix(fx: float, fy: float, cx: float, cy: float) -> np.ndarray:
+    """The 3 x 3 camera matrix of focal lengths ``fx``, ``fy`` and principal point ``cx``,
+    ``cy`` (pixels)."""
+    if not (fx > 0 and fy > 0 and np.isfinite([fx, fy, cx, cy]).all()):
+        raise InputError(f'camera intrinsics must be finite with fx, fy > 0, got fx={fx!r}, '
+                         f'fy={fy!r}, cx={cx!r}, cy={cy!r}')
+    return np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
+
+
+def rotation_matrix(quaternion: np.ndarray) -> np.ndarray:
+    """The rotation (3, 3) of a quaternion ``(x, y, z, w)`` (normalised here)."""
+    q = np.asarray(quaternion, dtype=np.float64)
+    norm = float(np.linalg.norm(q))
+    if q.shape != (4,) or not np.isfinite(norm) or norm < 1e-6:
+        raise InputError(f'orientation must be a finite, non-zero quaternion, got {q.tolist()}')
+    x, y, z, w = q / norm
+    return np.array([
+        [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+        [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+        [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
+
+
+def quaternion(rotation: np.ndarray) -> np.ndarray:
+    """The unit quaternion ``(x, y, z, w)``, ``w >= 0``, of a rotation matrix (3, 3)."""
+    r = np.asarray(rotation, dtype=np.float64)
+    # Shepperd's method: from the largest of the four squared components, for accuracy.
+    squares = np.array([1 + r[0, 0] - r[1, 1] - r[2, 2], 1 - r[0, 0] + r[1, 1] - r[2, 2],
+                        1 - r[0, 0] - r[1, 1] + r[2, 2], 1 + np.trace(r)])
+    k = int(np.argmax(squares))
+    big = 0.5 * np.sqrt(squares[k])
+    quarter = 0.25 / big
+    x_y, x_z, y_z = r[0, 1] + r[1, 0], r[0, 2] + r[2, 0], r[1, 2] + r[2, 1]
+    z_y, x_z_w, y_x = r[2, 1] - r[1, 2], r[0, 2] - r[2, 0], r[1, 0] - r[0, 1]
+    q = [np.array([big, x_y * quarter, x_z * quarter, z_y * quarter]),
+         np.array([x_y * quarter, big, y_z * quarter, x_z_w * quarter]),
+         np.array([x_z * quarter, y_z * quarter, big, y_x * quarter]),
+         np.array([z_y * quarter, x_z_w * quarter, y_x * quarter, big])][k]
+    unit: np.ndarray = q / np.linalg.norm(q)
+    return unit if unit[3] >= 0 else -unit
+
+
+def camera_matrix(position: np.ndarray, quaternion: np.ndarray,
+                  intrinsics: np.ndarray) -> np.ndarray:
+    """The projection matrix (3, 4), pixels from world points, of a camera at ``position``
+    (3,) with orientation ``quaternion`` (x, y, z, w; world from the optical frame) and camera
+    matrix ``intrinsics`` (3, 3)."""
+    centre = np.asarray(position, dtype=np.float64)
+    if centre.shape != (3,) or not np.all(np.isfinite(centre)):
+        raise InputError(f'position must be 3 finite numbers, got {centre.tolist()}')
+    to_camera = rotation_matrix(quaternion).T
+    projection: np.ndarray = intrinsics @ np.hstack([to_camera, -to_camera @ centre[:, None]])
+    return projection
+
+
+def read_pose(msg: Any, pose_type: str) -> tuple[np.ndarray, np.ndarray]:
+    """The position (3,) and orientation quaternion (x, y, z, w) of an ``Odometry``
+    (``pose_type`` 'odometry') or ``PoseStamped`` ('pose_stamped') message."""
+    if pose_type not in POSE_TYPES:
+        raise InputError(f'pose_type must be one of {sorted(POSE_TYPES)}, got {pose_type!r}')
+    try:
+        pose = msg.pose.pose if pose_type == 'odometry' else msg.pose
+        p, q = pose.position, pose.orientation
+        return (np.array([p.x, p.y, p.z], dtype=np.float64),
+                np.array([q.x, q.y, q.z, q.w], dtype=np.float64))
+    except AttributeError as err:
+        raise InputError(f'not a {POSE_TYPES[pose_type]} message: {err}') from err
+
+
+class PoseBuffer:
+    """The latest cameras by stamp, for feature frames to find theirs.
+
+    Parameters
+    ----------
+    tolerance_ns : int
+        A frame takes the camera nearest its stamp, if within this.
+    capacity : int
+        Cameras kept (the newest).
+    """
+
+    def __init__(self, tolerance_ns: int, capacity: int = POSE_CAPACITY) -> None:
+        self.tolerance_ns = int(tolerance_ns)
+        self._stamps: deque[int] = deque(maxlen=capacity)
+        self._cameras: deque[np.ndarray] = deque(maxlen=capacity)
+
+    def __len__(self) -> int:
+        return len(self._stamps)
+
+    def clear(self) -> None:
+        self._stamps.clear()
+        self._cameras.clear()
+
+    def add(self, stamp_ns: int, camera: np.ndarray) -> None:
+        """Keep ``camera`` (3, 4) of ``stamp_ns``; an earlier stamp than the newest (a bag
+        played again) first forgets the rest."""
+        if self._stamps and stamp_ns < self._stamps[-1]:
+            self.clear()
+        self._stamps.append(int(stamp_ns))
+        self._cameras.append(camera)
+
+    def find(self, stamp_ns: int) -> np.ndarray | None:
+        """The camera nearest ``stamp_ns`` within the tolerance, or None."""
+        if not self._stamps:
+            return None
+        stamps = list(self._stamps)
+        at = bisect.bisect_left(stamps, stamp_ns)
+        best, gap = None, self.tolerance_ns + 1
+        for i in (at - 1, at):
+            if 0 <= i < len(stamps) and abs(stamps[i] - stamp_ns) < gap:
+                best, gap = i, abs(stamps[i] - stamp_ns)
+        return None if best is None else self._cameras[best]

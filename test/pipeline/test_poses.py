@@ -1,0 +1,143 @@
+"""Camera poses as the segmenter takes them: projection matrices from odometry, poses matched to
+frames by stamp, and a replay of a bag whose camera poses are recorded beside its features."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+from rosbags.highlevel import AnyReader
+from scipy.spatial.transform import Rotation
+from static_scene import FOCAL, pose_of, static_scene
+
+from pearl_ros.bagio.decode import decode_fields
+from pearl_ros.bagio.reader import TYPESTORE, FeatureFrame
+from pearl_ros.bagio.writer import write_feature_bag
+from pearl_ros.cli.replay import main
+from pearl_ros.core.errors import InputError
+from pearl_ros.core.metrics import misclassification
+from pearl_ros.pipeline.poses import (
+    PoseBuffer,
+    camera_matrix,
+    intrinsics_matrix,
+    quaternion,
+    read_pose,
+    rotation_matrix,
+)
+from pearl_ros.pipeline.settings import NodeConfig
+
+POSE_TOPIC = '/vins_estimator/camera_pose'
+INTRINSIC_SETTINGS = [f'camera_fx={FOCAL}', f'camera_fy={FOCAL}', 'camera_cx=320',
+                      'camera_cy=240']
+
+
+def test_quaternions_and_rotations_agree_with_scipy():
+    for seed in range(50):
+        rotation = Rotation.random(random_state=seed)
+        expected = rotation.as_quat()  # (x, y, z, w)
+        expected = expected if expected[3] >= 0 else -expected
+        assert np.allclose(quaternion(rotation.as_matrix()), expected)
+        assert np.allclose(rotation_matrix(rotation.as_quat()), rotation.as_matrix())
+        assert np.allclose(rotation_matrix(3.0 * rotation.as_quat()), rotation.as_matrix())
+
+
+def test_camera_matrix_projects_as_a_pinhole_in_the_optical_frame():
+    rng = np.random.default_rng(0)
+    rotation = Rotation.random(random_state=1).as_matrix()  # world from camera
+    centre = np.array([2.0, -1.0, 0.5])
+    k = intrinsics_matrix(400.0, 410.0, 320.0, 240.0)
+    camera = camera_matrix(centre, quaternion(rotation), k)
+    # Points placed in front of the camera, in its own frame, then moved to the world.
+    local = np.column_stack([rng.uniform(-2, 2, 20), rng.uniform(-2, 2, 20),
+                             rng.uniform(3, 9, 20)])
+    world = local @ rotation.T + centre
+    projected = np.hstack([world, np.ones((20, 1))]) @ camera.T
+    uv = projected[:, :2] / projected[:, 2:]
+    expected = np.column_stack([400.0 * local[:, 0] / local[:, 2] + 320.0,
+                                410.0 * local[:, 1] / local[:, 2] + 240.0])
+    assert np.allclose(uv, expected)
+
+
+@pytest.mark.parametrize('call, message', [
+    (lambda: rotation_matrix(np.zeros(4)), 'non-zero quaternion'),
+    (lambda: rotation_matrix([0.0, 0.0, np.nan, 1.0]), 'finite'),
+    (lambda: camera_matrix([0.0, np.inf, 0.0], [0, 0, 0, 1], np.eye(3)), 'position'),
+    (lambda: intrinsics_matrix(0.0, 500.0, 320.0, 240.0), 'fx, fy > 0'),
+    (lambda: read_pose(object(), 'odometry'), 'not a nav_msgs/msg/Odometry'),
+    (lambda: read_pose(object(), 'twist'), 'pose_type'),
+])
+def test_bad_poses_are_refused_in_one_line(call, message):
+    with pytest.raises(InputError, match=message):
+        call()
+
+
+def test_pose_topic_needs_the_intrinsics():
+    with pytest.raises(InputError, match='camera_fx and camera_fy'):
+        NodeConfig(pose_topic='/odom')
+    NodeConfig(pose_topic='/odom', camera_fx=500.0, camera_fy=500.0)
+
+
+def test_a_frame_takes_the_nearest_pose_within_the_tolerance():
+    buffer = PoseBuffer(tolerance_ns=10)
+    cameras = {stamp: np.full((3, 4), float(stamp)) for stamp in (100, 130, 200)}
+    for stamp, camera in cameras.items():
+        buffer.add(stamp, camera)
+    assert buffer.find(108) is cameras[100] and buffer.find(125) is cameras[130]
+    assert buffer.find(115) is None and buffer.find(215) is None
+    buffer.add(50, cameras[100])  # a bag played again: the rest is forgotten
+    assert len(buffer) == 1 and buffer.find(200) is None
+
+
+@pytest.fixture(scope='module')
+def scene_bag(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, np.ndarray]:
+    """The static scene (a driving camera, a crossing box) as a bag with VINS-like camera poses
+    recorded beside the features, each pose logged just after its frame."""
+    tracks, truth, cameras = static_scene(frames=20, seed=7)
+    ids = np.arange(truth.size)
+    stamps = [1_000_000_000 + t * 33_333_333 for t in range(tracks.shape[0])]
+    frames = [FeatureFrame(s, ids, tracks[t]) for t, s in enumerate(stamps)]
+    poses = [(s + 1_000, *pose_of(cameras[t])) for t, s in enumerate(stamps)]
+    path = tmp_path_factory.mktemp('poses') / 'scene'
+    write_feature_bag(path, frames, [(s, ids, truth) for s in stamps], poses=poses,
+                      pose_topic=POSE_TOPIC)
+    return path, truth
+
+
+def _final_labels(bag: Path) -> np.ndarray:
+    with AnyReader([bag], default_typestore=TYPESTORE) as reader:
+        connections = [c for c in reader.connections if c.topic == '/motion_labels']
+        last = list(reader.messages(connections=connections))[-1]
+        msg = reader.deserialize(last[2], last[0].msgtype)
+    columns = decode_fields(msg, ('id', 'label'))
+    return columns['label'][np.argsort(columns['id'])]
+
+
+def test_a_replay_with_recorded_poses_finds_the_static_world_and_the_box(tmp_path, scene_bag):
+    bag, truth = scene_bag
+    stats_path = tmp_path / 'stats.json'
+    settings = [f'pose_topic={POSE_TOPIC}', 'pose_tolerance_ms=1', 'budget_ms=0',
+                *INTRINSIC_SETTINGS]
+    args = [str(bag), '--output', str(tmp_path / 'out'), '--stats', str(stats_path)]
+    for item in settings:
+        args += ['--set', item]
+    assert main(args) == 0
+    stats = json.loads(stats_path.read_text())
+    assert stats['counts']['poses'] == 20 and stats['counts']['bad_poses'] == 0
+    assert POSE_TOPIC in stats['counts']['copied']
+    assert misclassification(_final_labels(tmp_path / 'out'), truth) < 0.05
+
+
+def test_poses_beyond_the_tolerance_are_not_used(tmp_path, scene_bag):
+    bag, truth = scene_bag
+    stats_path = tmp_path / 'stats.json'
+    # Poses come 1 us after their frames: with a tolerance of 0 ms no frame takes one, and
+    # the replay segments as without poses (the driving scene then reads as one motion).
+    args = [str(bag), '--output', str(tmp_path / 'out'), '--stats', str(stats_path),
+            '--set', f'pose_topic={POSE_TOPIC}', '--set', 'pose_tolerance_ms=0',
+            '--set', 'budget_ms=0', *sum((['--set', s] for s in INTRINSIC_SETTINGS), [])]
+    assert main(args) == 0
+    plain = tmp_path / 'plain'
+    assert main([str(bag), '--output', str(plain), '--set', 'budget_ms=0']) == 0
+    assert np.array_equal(_final_labels(tmp_path / 'out'), _final_labels(plain))

@@ -1,0 +1,91 @@
+"""pearl_node with a camera pose topic: odometry published after each frame's features (as VINS
+publishes its camera_pose), the static world found as a motion of known parameters."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from geometry_msgs.msg import Point, Pose, PoseStamped, PoseWithCovariance, Quaternion
+from nav_msgs.msg import Odometry
+from rclpy.parameter import Parameter
+from static_scene import FOCAL, pose_of, static_scene
+
+from pearl_ros.bagio import decode
+from pearl_ros.core.errors import InputError
+from pearl_ros.core.metrics import misclassification
+
+from ros_harness import RELIABLE, Ros, header, vins_cloud
+
+STEP_NS = 33_333_333
+START_NS = 1_000_000_000
+INTRINSIC_PARAMETERS = {'camera_fx': FOCAL, 'camera_fy': FOCAL, 'camera_cx': 320.0,
+                        'camera_cy': 240.0}
+
+
+def _pose(camera: np.ndarray) -> Pose:
+    centre, q = pose_of(camera)
+    return Pose(position=Point(x=centre[0], y=centre[1], z=centre[2]),
+                orientation=Quaternion(x=q[0], y=q[1], z=q[2], w=q[3]))
+
+
+def _run(ros: Ros, pose_type: str | None) -> tuple[float, dict[str, str]]:
+    """The scene through the node (poses on ``camera_pose`` after each frame's features, if
+    ``pose_type``); the final frame's misclassification and the node's last diagnostics."""
+    tracks, truth, cameras = static_scene(frames=16, seed=8)
+    extra = {} if pose_type is None else {'pose_topic': 'camera_pose', 'pose_type': pose_type,
+                                          **INTRINSIC_PARAMETERS}
+    node = ros.pearl(budget_ms=0.0, **extra)
+    probe = ros.probe()
+    kind = Odometry if pose_type == 'odometry' else PoseStamped
+    poses = probe.node.create_publisher(kind, 'camera_pose', RELIABLE)
+    probe.wait_for(node)
+    if pose_type is not None:
+        assert ros.spin_until(lambda: poses.get_subscription_count() > 0)
+    ids = np.arange(truth.size)
+    for t in range(tracks.shape[0]):
+        stamp = START_NS + t * STEP_NS
+        labels_msg = probe.send(vins_cloud(stamp, ids, tracks[t]))
+        if pose_type == 'odometry':
+            poses.publish(Odometry(header=header(stamp), child_frame_id='cam0',
+                                   pose=PoseWithCovariance(pose=_pose(cameras[t]))))
+        elif pose_type == 'pose_stamped':
+            poses.publish(PoseStamped(header=header(stamp), pose=_pose(cameras[t])))
+    assert labels_msg is not None
+    columns = decode.decode_fields(labels_msg, ('id', 'label'))
+    labels = columns['label'][np.argsort(columns['id'])]
+    values = probe.diagnostics_where(lambda v: v.get('messages processed') == '16')
+    return misclassification(labels, truth), values
+
+
+@pytest.mark.parametrize('pose_type', ['odometry', 'pose_stamped'])
+def test_poses_after_their_frames_let_the_node_find_the_static_world(ros: Ros, pose_type):
+    error, values = _run(ros, pose_type)
+    assert error < 0.05
+    # Each frame is segmented before its pose comes; the poses are all taken, late.
+    assert int(values['camera poses taken']) >= 14 and values['camera poses refused'] == '0'
+
+
+def test_without_a_pose_topic_there_is_no_pose_subscription(ros: Ros):
+    node = ros.pearl()
+    subscriptions = node.get_subscriber_names_and_types_by_node(node.get_name(), ros.ns)
+    assert not any('Odometry' in ''.join(types) or 'PoseStamped' in ''.join(types)
+                   for _, types in subscriptions)
+    assert 'camera poses taken' not in {kv.key for kv in node.diagnostics().status[0].values}
+
+
+def test_pose_topic_needs_intrinsics_is_read_only_and_a_bad_pose_is_counted(ros: Ros):
+    with pytest.raises(InputError, match='camera_fx and camera_fy'):
+        ros.pearl(pose_topic='camera_pose')
+    node = ros.pearl(pose_topic='camera_pose', **INTRINSIC_PARAMETERS)
+    result = node.set_parameters([Parameter('pose_topic', value='other')])[0]
+    assert not result.successful and 'read-only' in result.reason
+    probe = ros.probe()
+    poses = probe.node.create_publisher(Odometry, 'camera_pose', RELIABLE)
+    probe.wait_for(node)
+    assert ros.spin_until(lambda: poses.get_subscription_count() > 0)
+    zero = Pose(orientation=Quaternion(x=0.0, y=0.0, z=0.0, w=0.0))
+    poses.publish(Odometry(header=header(START_NS), pose=PoseWithCovariance(pose=zero)))
+    assert ros.spin_until(lambda: len(node._pending_poses) == 1)
+    probe.send(vins_cloud(START_NS, [0, 1, 2], [[1.0, 1.0], [5.0, 2.0], [3.0, 9.0]]))
+    assert ros.spin_until(lambda: node.stats.bad_poses == 1)
+    assert ros.spin_until(lambda: probe.warnings('non-zero quaternion'))
