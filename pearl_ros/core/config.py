@@ -154,7 +154,7 @@ class SolverSettings:
         'the edges a Delaunay triangulation without the isolated points has, so that '
         'outlier tracks do not cut the ties between the points of a body')
     static_contrast: float = spec(
-        3.0, 'with known cameras: neighbours whose static-world residuals differ by d noise '
+        1.5, 'with known cameras: neighbours whose static-world residuals differ by d noise '
         'scales keep exp(-(d / static_contrast)^2) of their tie (a point that moves as the '
         'static world would and one that does not are not alike); 0 = ties as without cameras',
         low=0.0, high=1e6)

@@ -488,15 +488,13 @@ def _static_young(coords: np.ndarray, age: np.ndarray, young: np.ndarray,
     if members.size == 0 or young.size == 0:
         return None
     limit = STATIC_YOUNG * float(result.sigmas[static[0]])
-    distance_sq = np.full(young.size, np.inf)
-    for frames in np.unique(age[young]):
-        rows = np.flatnonzero(age[young] == frames)
-        own = cameras[-frames:]
-        if np.count_nonzero(~np.isnan(own).all(axis=(1, 2))) < min(CAMERA_FRAMES, frames):
-            continue
-        residual, in_front = static_residuals(own, coords[-frames:, young[rows]])
-        distance_sq[rows] = np.where(in_front & (residual <= limit),
-                                     frames * np.square(residual), np.inf)
+    # All young tracks at once, each over its own frames (NaN before its birth is left out).
+    points = coords[-cameras.shape[0]:, young]
+    known = ~np.isnan(cameras).all(axis=(1, 2))
+    used = np.count_nonzero(known[:, None] & ~np.isnan(points[..., 0]), axis=0)
+    residual, in_front = static_residuals(cameras, points)
+    explained = in_front & (residual <= limit) & (used >= np.minimum(CAMERA_FRAMES, age[young]))
+    distance_sq = np.where(explained, used * np.square(residual), np.inf)
     return int(fitted_labels[members[0]]), distance_sq
 
 

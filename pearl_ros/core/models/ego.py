@@ -16,7 +16,7 @@ from typing import ClassVar
 import numpy as np
 
 from pearl_ros.core.errors import InputError
-from pearl_ros.core.models.base import MotionModel, check_tracks
+from pearl_ros.core.models.base import MotionModel
 
 # The residual (px) given to a track whose triangulation fails (a degenerate or non-finite
 # solution): far beyond any noise level.
@@ -45,64 +45,76 @@ def static_residuals(cameras: np.ndarray, tracks: np.ndarray) -> tuple[np.ndarra
     ----------
     cameras : (F, 3, 4) float64, projection matrices (pixels from world) of the frames; all
         NaN for a frame whose camera is unknown (its coordinates are left out)
-    tracks : (F, N, 2) float64, px
+    tracks : (F, N, 2) float64, px; NaN where a track is not seen (a young track's frames
+        before its birth), left out
 
     Returns
     -------
-    residual : (N,) float64, RMS over the frames of the reprojection error (px) of the point
-        the linear (DLT) triangulation of each track finds, or, where that point lies behind a
-        camera, of the point at infinity it finds if that one lies in front; ``_FAILED_PX``
-        where the triangulation fails
+    residual : (N,) float64, RMS over the frames used of the reprojection error (px) of the
+        point the linear (DLT) triangulation of each track finds, or, where that point lies
+        behind a camera, of the point at infinity it finds if that one lies in front;
+        ``_FAILED_PX`` where the triangulation fails or fewer than two frames are used
     in_front : (N,) bool, a point in front of every camera explains the track (the finite
         one, or the one at infinity)
     """
-    tracks = check_tracks(tracks, min_frames=2)
+    tracks = np.asarray(tracks, dtype=np.float64)
+    if tracks.ndim != 3 or tracks.shape[2] != 2 or np.isinf(tracks).any():
+        raise InputError(f'tracks must have shape (F, N, 2), finite or NaN, got {tracks.shape}')
     cameras = check_cameras(cameras, tracks.shape[0])
     known = ~np.isnan(cameras).all(axis=(1, 2))
     cameras, tracks = cameras[known], tracks[known]
+    seen = ~np.isnan(tracks).any(axis=2)  # (F, N)
     # The world's origin moved to the cameras' mean centre keeps the system well conditioned
     # however far from its origin the robot has driven.
     centres = -np.linalg.solve(cameras[:, :, :3], cameras[:, :, 3:])[..., 0]  # (F, 3)
     shift = np.eye(4)
     shift[:3, 3] = centres.mean(axis=0)
     cameras = cameras @ shift
-    # Each frame gives two rows per track: u P3 - P1 and v P3 - P2 (times X = 0).
-    rows = np.concatenate([tracks[..., 0:1] * cameras[:, None, 2] - cameras[:, None, 0],
-                           tracks[..., 1:2] * cameras[:, None, 2] - cameras[:, None, 1]],
-                          axis=0)
+    # Each frame gives two rows per track: u P3 - P1 and v P3 - P2 (times X = 0); none where
+    # the track is not seen.
+    filled = np.where(seen[..., None], tracks, 0.0)
+    rows = np.concatenate([filled[..., 0:1] * cameras[:, None, 2] - cameras[:, None, 0],
+                           filled[..., 1:2] * cameras[:, None, 2] - cameras[:, None, 1]],
+                          axis=0) * np.concatenate([seen, seen])[..., None]
     # The least right singular vector of each track's rows, as the eigenvector of least
     # eigenvalue of their 4 x 4 normal matrix: one batched eigh, several times an SVD's speed.
     # (A finite point solved for with w = 1 weighs the rows otherwise: on the tests' driving
     # scene it let the crossing box pass for static points.)
     normal = np.matmul(np.transpose(rows, (1, 2, 0)), np.transpose(rows, (1, 0, 2)))
-    residual, in_front = _reprojection(cameras, tracks, np.linalg.eigh(normal)[1][:, :, 0])
+    residual, in_front = _reprojection(cameras, tracks, seen,
+                                       np.linalg.eigh(normal)[1][:, :, 0])
     # A point at infinity (w = 0: far buildings, the horizon) is a static point too: where a
     # short track's parallax is below the noise, the finite solution may fall behind the
     # cameras while the point at infinity in front explains the track as well.
     behind = np.flatnonzero(~in_front)
     if behind.size:
         direction = np.linalg.eigh(normal[behind, :3, :3])[1][:, :, 0]
-        far, far_in_front = _reprojection(cameras, tracks[:, behind], np.concatenate(
-            [direction, np.zeros((behind.size, 1))], axis=1))
+        far, far_in_front = _reprojection(cameras, tracks[:, behind], seen[:, behind],
+                                          np.concatenate([direction,
+                                                          np.zeros((behind.size, 1))], axis=1))
         residual[behind] = np.where(far_in_front, far, residual[behind])
         in_front[behind] = far_in_front
+    few = seen.sum(axis=0) < 2
+    residual[few], in_front[few] = _FAILED_PX, False
     return residual, in_front
 
 
-def _reprojection(cameras: np.ndarray, tracks: np.ndarray, points: np.ndarray
-                  ) -> tuple[np.ndarray, np.ndarray]:
+def _reprojection(cameras: np.ndarray, tracks: np.ndarray, seen: np.ndarray,
+                  points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """RMS reprojection error (px) of homogeneous ``points`` (N, 4), each up to sign, against
-    ``tracks`` (F, N, 2), and whether the point (or its opposite) lies in front of every
-    camera."""
+    ``tracks`` (F, N, 2) over the frames where ``seen`` (F, N), and whether the point (or its
+    opposite) lies in front of every camera that sees it."""
     projected = points @ np.transpose(cameras, (0, 2, 1))  # (F, N, 3)
     with np.errstate(divide='ignore', invalid='ignore', over='ignore'):
         offset = projected[..., :2] / projected[..., 2:] - tracks
-        residual = np.sqrt(np.mean(np.sum(np.square(offset), axis=2), axis=0))
+        squares = np.where(seen, np.sum(np.square(offset), axis=2), 0.0)
+        residual = np.sqrt(squares.sum(axis=0) / np.maximum(seen.sum(axis=0), 1))
     # A finite point's depth has the sign of z / w. A point at infinity is a direction, found
     # up to sign: it is in front where every camera sees it on one side, either one.
     sign = np.where(points[:, 3] != 0, np.sign(points[:, 3]), 1.0)
     depth = projected[..., 2] * sign
-    in_front = np.all(depth > 0, axis=0) | ((points[:, 3] == 0) & np.all(depth < 0, axis=0))
+    in_front = (np.all((depth > 0) | ~seen, axis=0)
+                | ((points[:, 3] == 0) & np.all((depth < 0) | ~seen, axis=0)))
     return np.where(np.isfinite(residual), residual, _FAILED_PX), in_front
 
 
@@ -138,15 +150,20 @@ class WithStaticWorld:
 
     Parameters
     ----------
-    base : MotionModel, the family (its residuals must be RMS pixels per frame, as the affine
-        subspaces' are)
+    base : MotionModel, the family, refitted in closed form, whose residuals are RMS pixels per
+        frame (the affine subspaces)
     cameras : (F, 3, 4) float64, projection matrices of the frames of the tracks to be fitted
     """
 
     name: ClassVar[str] = 'static_world'
-    refit_from_start: ClassVar[bool] = True  # a refit may turn to or from the static world
+    # A refit chooses between the family's closed-form refit and the static world by the
+    # inliers alone, whatever it starts from.
+    refit_from_start: ClassVar[bool] = False
 
     def __init__(self, base: MotionModel, cameras: np.ndarray) -> None:
+        if base.refit_from_start:
+            raise InputError(f'cameras are used with the affine model only (its residuals are '
+                             f'RMS pixels per frame, as the static world\'s), not {base.name!r}')
         self.base = base
         self.cameras = np.asarray(cameras, dtype=np.float64)
         self.min_samples = base.min_samples

@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 from static_scene import INTRINSICS, static_scene
 
+from pearl_ros.core.config import PearlConfig
 from pearl_ros.core.errors import InputError
 from pearl_ros.core.metrics import misclassification
 from pearl_ros.core.models.affine import AffineSubspace
@@ -144,3 +145,9 @@ def test_frames_without_their_camera_are_left_out():
     one[0] = cameras[0]
     with pytest.raises(InputError, match='two frames'):
         static_residuals(one, tracks)
+
+
+def test_cameras_go_with_the_affine_family_only():
+    tracks, _, cameras = static_scene()
+    with pytest.raises(InputError, match='affine model only'):
+        fit(tracks, PearlConfig(model='fundamental'), rng=0, cameras=cameras)
