@@ -3,7 +3,9 @@ the labels that come back against the bag's ground truth as they arrive.
 
 Not a ``ros2 bag play``: it publishes one message, waits for that message's ``motion_labels``
 (matched by stamp), then the next, at most at ``--rate`` Hz. So nothing is lost to queue depths
-and every frame's answer is accounted for, whatever the node's speed.
+and every frame's answer is accounted for, whatever the node's speed. With ``--poses TOPIC``
+the bag's camera poses on that topic are published too, on the same name, each before the
+first frame whose stamp is not earlier than its own (a node with ``pose_topic`` takes them).
 
 Example (``make demo`` does this; ``--msg-type`` prints the bag's feature message type, which
 the node must be told)::
@@ -27,6 +29,8 @@ from typing import Any
 
 import numpy as np
 import rclpy
+from geometry_msgs.msg import PoseStamped
+from nav_msgs.msg import Odometry
 from rclpy.executors import Executor, ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
@@ -72,6 +76,53 @@ class BagFeatures:
     msg_type: str
     messages: list[Any]
     skipped: list[tuple[int, Skipped]] = field(default_factory=list)
+
+
+@dataclass(frozen=True)
+class BagPoses:
+    """The camera poses of a bag, ready to publish beside its feature messages.
+
+    Attributes
+    ----------
+    topic : str
+    msg_class : type, rclpy's ``Odometry`` or ``PoseStamped``
+    stamps : list of int, ns, header stamps, in recording order
+    raw : list of bytes, each pose's ROS 2 CDR
+    """
+
+    topic: str
+    msg_class: Any
+    stamps: list[int]
+    raw: list[bytes]
+
+
+def load_poses(path: str | Path, topic: str, feature_topic: str = FEATURE_TOPIC) -> BagPoses:
+    """The messages of the pose ``topic`` of a bag (``nav_msgs/msg/Odometry`` or
+    ``geometry_msgs/msg/PoseStamped``), as ROS 2 CDR with their stamps.
+
+    Raises
+    ------
+    BagError
+        No such topic, or another type on it; a pose that cannot be read.
+    """
+    kinds = reader.topics(path)
+    if topic not in kinds:
+        raise BagError(f'{path}: no topic {topic!r}; topics: {", ".join(kinds) or "none"}')
+    classes = {'nav_msgs/msg/Odometry': Odometry, 'geometry_msgs/msg/PoseStamped': PoseStamped}
+    if kinds[topic] not in classes:
+        raise BagError(f'{path}: topic {topic} has type {kinds[topic]}, expected '
+                       f'{" or ".join(classes)}')
+    stamps, raw = [], []
+    with reader.open_feature_stream(path, feature_topic, (topic,)) as stream:
+        for item in stream:
+            if not isinstance(item, reader.CopiedMessage):
+                continue
+            if item.cdr is None:
+                raise BagError(f'{path}: a pose on {topic} cannot be read: {item.error}')
+            msg: Any = reader.TYPESTORE.deserialize_cdr(item.cdr, item.msgtype)
+            stamps.append(decode.stamp_ns(msg.header))
+            raw.append(item.cdr)
+    return BagPoses(topic, classes[kinds[topic]], stamps, raw)
 
 
 def bag_msg_type(path: str | Path, topic: str = FEATURE_TOPIC) -> str:
@@ -168,13 +219,19 @@ class Player(Node):
 
     def __init__(self, messages: Sequence[Any], *, features_topic: str = 'features',
                  labels_topic: str = 'motion_labels', node_name: str = 'pearl_play',
-                 **kwargs: Any) -> None:
+                 poses: BagPoses | None = None, **kwargs: Any) -> None:
         super().__init__(node_name, **kwargs)
         if not messages:
             raise PearlError('no messages to play')
         self.messages = list(messages)
         qos = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
         self.publisher = self.create_publisher(type(self.messages[0]), features_topic, qos)
+        self.poses = poses
+        self.poses_sent = 0
+        if poses is not None:
+            pose_qos = QoSProfile(depth=len(poses.raw) + 1,
+                                  reliability=ReliabilityPolicy.RELIABLE)
+            self.pose_publisher = self.create_publisher(poses.msg_class, poses.topic, pose_qos)
         self.answers: dict[int, Answer] = {}
         self._sub = self.create_subscription(PointCloud2, labels_topic, self._on_labels, qos)
 
@@ -217,6 +274,7 @@ class Player(Node):
         for index, msg in enumerate(self.messages):
             sent = time.monotonic()
             stamp = decode.stamp_ns(msg.header)
+            self._send_poses(stamp)
             self.publisher.publish(msg)
             answered = functools.partial(operator.contains, self.answers, stamp)  # stamp in
             spin_until(executor, answered, timeout_s)
@@ -227,6 +285,18 @@ class Player(Node):
             if rate_hz > 0:
                 spin_until(executor, lambda: False, 1.0 / rate_hz - (time.monotonic() - sent))
         return out
+
+
+    def _send_poses(self, stamp_ns: int) -> None:
+        """Publish the poses not sent yet whose stamps are at most ``stamp_ns``: each frame's
+        pose reaches the node before the frame (a pose that comes after its frame serves
+        too, for the frames that follow)."""
+        poses = self.poses
+        if poses is None:
+            return
+        while self.poses_sent < len(poses.raw) and poses.stamps[self.poses_sent] <= stamp_ns:
+            self.pose_publisher.publish(poses.raw[self.poses_sent])
+            self.poses_sent += 1
 
 
 def spin_until(executor: Executor, done: Callable[[], bool], timeout_s: float) -> bool:
@@ -261,6 +331,10 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument('--features', default=FEATURE_TOPIC,
                         help='topic to publish on (what pearl_node subscribes)')
     parser.add_argument('--labels', default='/motion_labels', help="pearl_node's labels topic")
+    parser.add_argument('--poses', default='', metavar='TOPIC',
+                        help="the bag's camera pose topic (nav_msgs/msg/Odometry or "
+                        'geometry_msgs/msg/PoseStamped), published on the same name before '
+                        "each frame, for a pearl_node with pose_topic; empty = none")
     parser.add_argument('--rate', type=float, default=10.0, help='Hz, at most (0 = no limit)')
     parser.add_argument('--timeout', type=float, default=5.0,
                         help='s, wait for the node (discovery) and for each answer')
@@ -282,6 +356,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             return 0
         bag = load_bag(args.bag, args.topic)
         truth = _truth(args.bag, args.truth_topic)
+        poses = load_poses(args.bag, args.poses, args.topic) if args.poses else None
     except PearlError as err:
         print(f'error: {err}', file=sys.stderr)
         return 1
@@ -293,7 +368,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     player = None
     try:
         executor = SingleThreadedExecutor()
-        player = Player(bag.messages, features_topic=args.features, labels_topic=args.labels)
+        player = Player(bag.messages, features_topic=args.features, labels_topic=args.labels,
+                        poses=poses)
         executor.add_node(player)
         if not player.wait_for_node(executor, args.timeout):
             print(f'error: {_not_found(player, bag.msg_type, args)}', file=sys.stderr)
@@ -338,6 +414,8 @@ def _play(player: Player, executor: Executor, bag: BagFeatures,
     answers = player.play(executor, rate_hz=args.rate, timeout_s=args.timeout, on_answer=show)
     missing = sum(answer is None for answer in answers)
     print(f'{len(answers) - missing}/{len(answers)} frames answered by pearl_node')
+    if player.poses is not None:
+        print(f'{player.poses_sent} camera poses played on {player.poses.topic}')
     if truth is not None:
         for line in scoring.summary_lines(scoring.summarise(rows)):
             print(line)

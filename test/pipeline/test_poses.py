@@ -10,11 +10,10 @@ import numpy as np
 import pytest
 from rosbags.highlevel import AnyReader
 from scipy.spatial.transform import Rotation
-from static_scene import FOCAL, pose_of, static_scene
+from static_scene import FOCAL, write_scene_bag
 
 from pearl_ros.bagio.decode import decode_fields
-from pearl_ros.bagio.reader import TYPESTORE, FeatureFrame
-from pearl_ros.bagio.writer import write_feature_bag
+from pearl_ros.bagio.reader import TYPESTORE
 from pearl_ros.cli.replay import main
 from pearl_ros.core.errors import InputError
 from pearl_ros.core.metrics import misclassification
@@ -94,15 +93,8 @@ def test_a_frame_takes_the_nearest_pose_within_the_tolerance():
 def scene_bag(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, np.ndarray]:
     """The static scene (a driving camera, a crossing box) as a bag with VINS-like camera poses
     recorded beside the features, each pose logged just after its frame."""
-    tracks, truth, cameras = static_scene(frames=20, seed=7)
-    ids = np.arange(truth.size)
-    stamps = [1_000_000_000 + t * 33_333_333 for t in range(tracks.shape[0])]
-    frames = [FeatureFrame(s, ids, tracks[t]) for t, s in enumerate(stamps)]
-    poses = [(s + 1_000, *pose_of(cameras[t])) for t, s in enumerate(stamps)]
     path = tmp_path_factory.mktemp('poses') / 'scene'
-    write_feature_bag(path, frames, [(s, ids, truth) for s in stamps], poses=poses,
-                      pose_topic=POSE_TOPIC)
-    return path, truth
+    return path, write_scene_bag(path, 20, 7, POSE_TOPIC)
 
 
 def _final_labels(bag: Path) -> np.ndarray:

@@ -8,11 +8,12 @@ import pytest
 from geometry_msgs.msg import Point, Pose, PoseStamped, PoseWithCovariance, Quaternion
 from nav_msgs.msg import Odometry
 from rclpy.parameter import Parameter
-from static_scene import FOCAL, pose_of, static_scene
+from static_scene import FOCAL, pose_of, static_scene, write_scene_bag
 
 from pearl_ros.bagio import decode
 from pearl_ros.core.errors import InputError
 from pearl_ros.core.metrics import misclassification
+from pearl_ros.ros.play import Player, bag_messages, load_poses
 
 from ros_harness import RELIABLE, Ros, header, vins_cloud
 
@@ -89,3 +90,22 @@ def test_pose_topic_needs_intrinsics_is_read_only_and_a_bad_pose_is_counted(ros:
     probe.send(vins_cloud(START_NS, [0, 1, 2], [[1.0, 1.0], [5.0, 2.0], [3.0, 9.0]]))
     assert ros.spin_until(lambda: node.stats.bad_poses == 1)
     assert ros.spin_until(lambda: probe.warnings('non-zero quaternion'))
+
+
+def test_pearl_play_plays_a_bags_poses_beside_its_features(ros: Ros, tmp_path):
+    topic = f'{ros.ns}/camera_pose'
+    truth = write_scene_bag(tmp_path / 'scene', 16, 9, topic)
+    node = ros.pearl(budget_ms=0.0, pose_topic=topic, **INTRINSIC_PARAMETERS)
+    poses = load_poses(tmp_path / 'scene', topic)
+    assert len(poses.stamps) == 16 and poses.msg_class is Odometry
+    player = ros.add(Player(bag_messages(tmp_path / 'scene'), context=ros.context,
+                            namespace=ros.ns, poses=poses))
+    assert player.wait_for_node(ros.executor, 10.0)
+    assert ros.spin_until(lambda: player.pose_publisher.get_subscription_count() > 0)
+    answers = player.play(ros.executor, timeout_s=10.0)
+    assert all(answer is not None for answer in answers)
+    # Each pose is stamped 1 us after its frame: it goes out before the next frame.
+    assert player.poses_sent == 15 and node.stats.poses == 15
+    final = answers[-1]
+    assert final is not None
+    assert misclassification(final.labels[np.argsort(final.ids)], truth) < 0.05
