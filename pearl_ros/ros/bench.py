@@ -36,7 +36,8 @@ from typing import Any
 import numpy as np
 import rclpy
 from builtin_interfaces.msg import Time
-from geometry_msgs.msg import Point32
+from geometry_msgs.msg import Point, Point32, Pose, PoseWithCovariance, Quaternion
+from nav_msgs.msg import Odometry
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.logging import LoggingSeverity
 from rclpy.node import Node
@@ -57,6 +58,7 @@ from pearl_ros.ros.node import OUTPUT_DEPTH, PearlNode, input_qos
 from pearl_ros.ros.play import spin_until
 
 KINDS = ('no-op', 'pearl_node')
+POSE_TOPIC = 'camera_pose'
 QUIET_S = 3.0  # s without an answer after the last frame: the rest will not come
 
 
@@ -110,10 +112,16 @@ class Source(Node):
     its messages in its own process, and this one is the node's.
     """
 
-    def __init__(self, messages: list[Any], rate_hz: float, **kwargs: Any) -> None:
+    def __init__(self, messages: list[Any], rate_hz: float, poses: list[Any] | None = None,
+                 **kwargs: Any) -> None:
         super().__init__('pearl_node_bench', **kwargs)
         qos = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
         self.messages = [serialize_message(m) for m in messages]
+        # Each frame's camera pose, published right after the frame, as VINS publishes its
+        # camera_pose after the features it estimated it from.
+        self.poses = None if poses is None else [serialize_message(m) for m in poses]
+        if self.poses is not None:
+            self.pose_publisher = self.create_publisher(Odometry, POSE_TOPIC, qos)
         self.period_s = 1.0 / rate_hz
         self.index = {decode.stamp_ns(m.header): i for i, m in enumerate(messages)}
         self.start = math.nan  # monotonic s when frame 0 is due
@@ -133,6 +141,8 @@ class Source(Node):
         now = time.monotonic()
         while self.sent < len(self.messages) and self.due(self.sent) <= now:
             self.publisher.publish(self.messages[self.sent])
+            if self.poses is not None:
+                self.pose_publisher.publish(self.poses[self.sent])
             self.sent += 1
         return self.due(self.sent) - now if self.sent < len(self.messages) else math.inf
 
@@ -172,7 +182,8 @@ class Row:
 
 
 def run_row(kind: str, make_node: Callable[[str], Node], messages: list[Any],
-            truth: Sequence[np.ndarray], features: int, rate_hz: float, row: int) -> Row:
+            truth: Sequence[np.ndarray], features: int, rate_hz: float, row: int,
+            poses: list[Any] | None = None) -> Row:
     """Run ``messages`` through the node ``make_node(namespace)`` builds, in its own namespace.
 
     Raises
@@ -183,7 +194,7 @@ def run_row(kind: str, make_node: Callable[[str], Node], messages: list[Any],
     executor = SingleThreadedExecutor()
     ns = f'/pearl_bench_{os.getpid()}_{row}'
     node = make_node(ns)
-    source = Source(messages, rate_hz, namespace=ns)
+    source = Source(messages, rate_hz, poses, namespace=ns)
     # As pearl_node's runner does once started; here it also keeps the source's messages (some
     # 1,000 Python objects each) out of the collector's full scans, which a node does not hold.
     gc.freeze()
@@ -233,6 +244,34 @@ def format_rows(rows: Sequence[Row], title: str) -> str:
     return '\n'.join(lines)
 
 
+def camera_parameters() -> dict[str, Any]:
+    """pearl_node's parameters for the robot stream's camera poses (:func:`camera_poses`)."""
+    from pearl_ros.datasets.robot import INTRINSICS
+
+    return {'pose_topic': POSE_TOPIC, 'camera_fx': float(INTRINSICS[0, 0]),
+            'camera_fy': float(INTRINSICS[1, 1]), 'camera_cx': float(INTRINSICS[0, 2]),
+            'camera_cy': float(INTRINSICS[1, 2])}
+
+
+def camera_poses(stamps: Sequence[int], seed: int) -> list[Any]:
+    """The true camera pose of each frame of the robot stream of ``seed``, as Odometry."""
+    from pearl_ros.datasets.robot import robot_scene
+    from pearl_ros.pipeline.poses import quaternion
+
+    scene = robot_scene(len(stamps), seed)
+    out = []
+    for t, stamp in enumerate(stamps):
+        c, q = scene.camera_position[t], quaternion(scene.camera_rotation[t])
+        sec, nanosec = divmod(int(stamp), 1_000_000_000)
+        out.append(Odometry(
+            header=Header(stamp=Time(sec=sec, nanosec=nanosec), frame_id='world'),
+            child_frame_id='camera', pose=PoseWithCovariance(pose=Pose(
+                position=Point(x=float(c[0]), y=float(c[1]), z=float(c[2])),
+                orientation=Quaternion(x=float(q[0]), y=float(q[1]), z=float(q[2]),
+                                       w=float(q[3]))))))
+    return out
+
+
 def _quiet(node: Node) -> Node:
     """``node`` logging errors only: what it drops is counted in the table, not warned about."""
     node.get_logger().set_level(LoggingSeverity.ERROR)
@@ -253,6 +292,10 @@ def build_parser() -> argparse.ArgumentParser:
                         'tracks (default); synthetic: rigid 2-D motions, births and deaths')
     parser.add_argument('--set', action='append', default=[], metavar='NAME=VALUE',
                         help='a parameter of pearl_node, repeatable (window=10, ...)')
+    parser.add_argument('--cameras', action='store_true',
+                        help="robot stream: also publish each frame's true camera pose "
+                        f'(nav_msgs/msg/Odometry on {POSE_TOPIC}, after the frame) to a '
+                        'pearl_node with pose_topic and the intrinsics set')
     return parser
 
 
@@ -270,6 +313,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         if settings.node.msg_type != 'PointCloud':
             raise InputError('the benchmark publishes PointCloud: msg_type must stay PointCloud')
         sizes = [latency.parse_size(token, args.rate) for token in args.features]
+        if args.cameras:
+            if args.stream != 'robot':
+                raise InputError('--cameras needs the robot stream (its scene knows its poses)')
+            overrides = {**overrides, **camera_parameters()}
     except InputError as err:
         print(f'error: {err}', file=sys.stderr)
         return 1
@@ -281,6 +328,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             stream = latency.make_stream(args.stream, features, args.frames, args.seed)
             messages = [vins_mono_cloud(f.stamp_ns, f.ids, f.uv) for f in stream]
             truth = [f.truth for f in stream]
+            poses = (camera_poses([f.stamp_ns for f in stream], args.seed) if args.cameras
+                     else None)
             makers: dict[str, Callable[[str], Node]] = {
                 'no-op': lambda ns: NoopNode(settings, namespace=ns),
                 'pearl_node': lambda ns: _quiet(PearlNode(namespace=ns, parameter_overrides=[
@@ -289,7 +338,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             for kind in KINDS:
                 sys.stderr.write(f'\r{kind}: {features} features at {rate:g} Hz   ')
                 rows.append(run_row(kind, makers[kind], messages, truth, features, rate,
-                                    len(rows)))
+                                    len(rows), poses))
         sys.stderr.write('\n')
     except InputError as err:
         print(f'\nerror: {err}', file=sys.stderr)

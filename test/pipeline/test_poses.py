@@ -133,3 +133,21 @@ def test_poses_beyond_the_tolerance_are_not_used(tmp_path, scene_bag):
     plain = tmp_path / 'plain'
     assert main([str(bag), '--output', str(plain), '--set', 'budget_ms=0']) == 0
     assert np.array_equal(_final_labels(tmp_path / 'out'), _final_labels(plain))
+
+
+def test_poses_of_another_type_are_warned_about_counted_and_left_out(tmp_path, scene_bag,
+                                                                      capsys):
+    bag, truth = scene_bag
+    stats_path = tmp_path / 'stats.json'
+    # The bag's poses are Odometry; told they are PoseStamped, the replay takes none of them,
+    # says so once, and segments as without poses.
+    args = [str(bag), '--output', str(tmp_path / 'out'), '--stats', str(stats_path),
+            '--set', f'pose_topic={POSE_TOPIC}', '--set', 'pose_type=pose_stamped',
+            '--set', 'budget_ms=0', *sum((['--set', s] for s in INTRINSIC_SETTINGS), [])]
+    assert main(args) == 0
+    counts = json.loads(stats_path.read_text())['counts']
+    assert counts['poses'] == 0 and counts['bad_poses'] == 20
+    err = capsys.readouterr().err
+    lines = [line for line in err.splitlines() if 'nav_msgs/msg/Odometry, not' in line]
+    assert len(lines) == 1, err
+    assert 'geometry_msgs/msg/PoseStamped (pose_type pose_stamped)' in lines[0]

@@ -49,3 +49,30 @@ def test_node_bench_refuses_a_bad_size_in_one_line_before_starting_ros(capsys) -
     assert main(['--features', '300@fast']) == 1
     err = capsys.readouterr().err
     assert err.startswith('error: a size is FEATURES or FEATURES@HZ') and err.count('\n') == 1
+
+
+def test_node_bench_with_cameras_feeds_the_true_poses_to_the_node() -> None:
+    from pearl_ros.datasets.robot import robot_scene
+    from pearl_ros.pipeline.poses import camera_matrix, intrinsics_matrix, read_pose
+    from pearl_ros.ros.bench import camera_parameters, camera_poses
+
+    stream = make_stream('robot', 60, FRAMES, 3)
+    poses = camera_poses([frame.stamp_ns for frame in stream], 3)
+    scene = robot_scene(FRAMES, 3)
+    values = camera_parameters()
+    k = intrinsics_matrix(values['camera_fx'], values['camera_fy'], values['camera_cx'],
+                          values['camera_cy'])
+    for t, msg in enumerate(poses):
+        # The camera the node rebuilds from each message is the scene's own.
+        assert np.allclose(camera_matrix(*read_pose(msg, 'odometry'), k), scene.camera(t))
+    done = subprocess.run(
+        [sys.executable, '-m', 'pearl_ros.ros.bench', '--features', '60', '--frames',
+         str(FRAMES), '--cameras', '--set', 'qos=reliable', '--set', f'qos_depth={FRAMES}',
+         '--set', 'queue_policy=all'],
+        capture_output=True, text=True, timeout=300, cwd=REPO, env=dict(os.environ))
+    assert done.returncode == 0, done.stderr
+    assert 'pose_topic=camera_pose' in done.stdout
+    answered = [line.split()[3] for line in done.stdout.splitlines()
+                if line.split()[:1] == ['pearl_node'] and line.split()[1].isdigit()]
+    assert answered == [f'{FRAMES}/{FRAMES}']
+    assert main(['--cameras', '--stream', 'synthetic']) == 1
