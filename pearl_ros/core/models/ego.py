@@ -167,6 +167,7 @@ class WithStaticWorld:
         self.base = base
         self.cameras = np.asarray(cameras, dtype=np.float64)
         self.min_samples = base.min_samples
+        self._static: tuple[int, np.ndarray] | None = None  # data width, the static params
 
     def data(self, tracks: np.ndarray) -> np.ndarray:
         """The family's rows and each track's static residual; a track that only a point
@@ -184,8 +185,12 @@ class WithStaticWorld:
 
     def static(self, data: np.ndarray) -> np.ndarray:
         """The static world's params: the shape of one of the family's, all NaN."""
-        shape = self.base.fit_minimal(data[:, :-1], np.arange(self.min_samples)[None])[0].shape
-        return np.full(shape[1:], np.nan)
+        if self._static is None or self._static[0] != data.shape[1]:
+            shape = self.base.fit_minimal(data[:, :-1],
+                                          np.arange(self.min_samples)[None])[0].shape
+            self._static = (data.shape[1], np.full(shape[1:], np.nan))
+        params: np.ndarray = self._static[1].copy()
+        return params
 
     def fixed_hypotheses(self, data: np.ndarray) -> np.ndarray:
         """Hypotheses offered with every batch of proposals: the static world."""
