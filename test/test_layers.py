@@ -34,6 +34,8 @@ MODULES = (
     'pearl_ros.datasets.kt3dmoseg',
     'pearl_ros.datasets.outliers',
     'pearl_ros.datasets.robot',
+    'pearl_ros.core.models.ego',
+    'pearl_ros.pipeline.poses',
 )
 
 # A finder first on sys.meta_path records every attempt to import ROS client code, so even an
@@ -43,7 +45,8 @@ import importlib, sys
 attempts = []
 class Tripwire:
     def find_spec(self, name, path=None, target=None):
-        if name.split('.')[0] in ('rclpy', 'rosidl_runtime_py', 'sensor_msgs', 'std_msgs'):
+        if name.split('.')[0] in ('rclpy', 'rosidl_runtime_py', 'sensor_msgs', 'std_msgs',
+                                  'geometry_msgs', 'nav_msgs'):
             attempts.append(name)
         return None
 sys.meta_path.insert(0, Tripwire())
