@@ -160,7 +160,8 @@ class OnlineSegmenter:
             On a camera that is not a finite (3, 4) projection matrix.
         """
         checked = _check_camera(camera)
-        assert checked is not None
+        if checked is None:
+            raise InputError('camera must be a finite (3, 4) projection matrix, got None')
         return self._window.set_camera(int(stamp_ns), checked, int(tolerance_ns))
 
     def process(self, stamp_ns: int, ids: np.ndarray, uv: np.ndarray,

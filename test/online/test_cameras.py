@@ -102,5 +102,6 @@ def test_cameras_that_come_after_their_frames_serve_as_well():
         result = segmenter.process(t * STEP_NS, ids, tracks[t])
         assert segmenter.set_camera(t * STEP_NS + 1_000, cameras[t], tolerance_ns=5_000)
     assert misclassification(result.labels, truth) < 0.05
-    with pytest.raises(InputError, match='finite'):
-        segmenter.set_camera(0, np.zeros((3, 3)))
+    for bad in (np.zeros((3, 3)), None):
+        with pytest.raises(InputError, match='finite'):
+            segmenter.set_camera(0, bad)
