@@ -173,7 +173,6 @@ class MessagePipeline:
         self._types = types or encode.MessageTypes.from_typestore(TYPESTORE)
         self._segmenter = OnlineSegmenter(*self._settings.configs)
         self._poses = PoseBuffer(self._pose_tolerance_ns())
-        self.poses = 0  # pose messages taken
 
     @property
     def settings(self) -> Settings:
@@ -208,7 +207,6 @@ class MessagePipeline:
             return Skipped('pose', f'pose: {one_line(err, None)}', True)
         self._poses.add(stamp, camera)
         self._segmenter.set_camera(stamp, camera, self._poses.tolerance_ns)
-        self.poses += 1
         return None
 
     def reset(self) -> None:
