@@ -173,6 +173,9 @@ class MessagePipeline:
         self._types = types or encode.MessageTypes.from_typestore(TYPESTORE)
         self._segmenter = OnlineSegmenter(*self._settings.configs)
         self._poses = PoseBuffer(self._pose_tolerance_ns())
+        # Feature frames that got a camera pose, when segmented or later (a pose that came
+        # after its frame): what tells a user that poses and frames meet (their clocks agree).
+        self.frames_with_camera = 0
 
     @property
     def settings(self) -> Settings:
@@ -206,7 +209,8 @@ class MessagePipeline:
         except (InputError, AttributeError, TypeError, ValueError) as err:
             return Skipped('pose', f'pose: {one_line(err, None)}', True)
         self._poses.add(stamp, camera)
-        self._segmenter.set_camera(stamp, camera, self._poses.tolerance_ns)
+        self.frames_with_camera += self._segmenter.set_camera(stamp, camera,
+                                                              self._poses.tolerance_ns)
         return None
 
     def reset(self) -> None:
@@ -267,6 +271,7 @@ class MessagePipeline:
         try:
             camera = self._poses.find(stamp) if node.pose_topic else None
             result = self._segmenter.process(stamp, ids[segmented], uv[segmented], camera)
+            self.frames_with_camera += camera is not None
         except InputError as err:  # a stamp equal to the last: the window is unchanged
             return Skipped.because(err, malformed=False)
         labels = np.full(ids.size, encode.UNLABELLED, dtype=np.int64)

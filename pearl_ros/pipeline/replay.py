@@ -101,6 +101,7 @@ class ReplayStats:
     not_copied: int = 0
     poses: int = 0  # camera poses taken from pose_topic
     bad_poses: int = 0  # camera poses that could not be read or used
+    frames_with_camera: int = 0  # feature frames that got a camera pose
     messages: int = 0
     wall_s: float = 0.0
 
@@ -118,6 +119,7 @@ class ReplayStats:
             'not_copied': self.not_copied,
             'poses': self.poses,
             'bad_poses': self.bad_poses,
+            'frames_with_camera': self.frames_with_camera,
         }
 
     def summary(self) -> dict[str, Any]:
@@ -214,6 +216,11 @@ def replay(
             for topic, msgtype in stream.copied.items():
                 out.add_topic(topic, msgtype)
             _run(stream, pipeline, settings, out, stats, warn, progress)
+            stats.frames_with_camera = pipeline.frames_with_camera
+            if stats.poses and not stats.frames_with_camera:
+                warn(-1, Skipped('pose_unmatched', f'none of the {stats.poses} poses on '
+                                 f'{pose_topic} is within pose_tolerance_ms of a feature '
+                                 'frame (clocks that differ?): segmented without them', False))
             if stats.skipped and not stats.frames:
                 # Nothing to show for the run: most likely the wrong topic or layout.
                 raise BagError(

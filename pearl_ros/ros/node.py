@@ -99,6 +99,8 @@ OUTPUT_DEPTH = 10  # messages, keep-last depth of the (reliable) outputs
 MATCH_DEPTH = 30
 # Poses waiting for the worker: a second of 200 Hz odometry (the oldest go first).
 POSE_BACKLOG = 200
+# Frames segmented with poses coming but none matched before the diagnostics say so.
+UNMATCHED_FRAMES = 10
 
 
 def input_qos(kind: str, depth: int) -> QoSProfile:
@@ -132,6 +134,7 @@ class Stats:
     images: int = 0  # received on image_topic
     poses: int = 0  # camera poses taken from pose_topic
     bad_poses: int = 0  # unreadable poses (zero quaternion, non-finite position)
+    frames_with_camera: int = 0  # feature frames that got a camera pose
     annotated: int = 0  # image_labels published
     bad_images: int = 0  # unsupported encoding, or step / data that do not fit
     incompatible_qos: int = 0  # publishers whose QoS the subscription cannot match
@@ -431,6 +434,7 @@ class PearlNode(Node):
             out = msg if isinstance(msg, Skipped) else self._pipeline.process(msg)
             with self._lock:
                 self.stats.window = self._pipeline.frames_in_window
+                self.stats.frames_with_camera = self._pipeline.frames_with_camera
         node = self.settings.node
         if isinstance(out, Skipped):
             with self._lock:
@@ -666,7 +670,8 @@ class PearlNode(Node):
                 'internal errors': stats.errors,
                 'publishers of another type': stats.mismatched_publishers,
                 'publishers with incompatible QoS': stats.incompatible_qos,
-                **({'camera poses taken': stats.poses, 'camera poses refused': stats.bad_poses}
+                **({'camera poses taken': stats.poses, 'camera poses refused': stats.bad_poses,
+                    'frames given a camera pose': stats.frames_with_camera}
                    if self.settings.node.pose_topic else {}),
                 **image_values,
             }
@@ -692,6 +697,9 @@ class PearlNode(Node):
                             'or malformed')
         if not stats.period_received:
             problems.append('no input')
+        if stats.poses and stats.processed >= UNMATCHED_FRAMES and not stats.frames_with_camera:
+            problems.append('no camera pose within pose_tolerance_ms of any feature frame '
+                            '(clocks that differ?)')
         return problems
 
     def _image_values(self) -> dict[str, Any]:

@@ -117,11 +117,13 @@ def test_a_replay_with_recorded_poses_finds_the_static_world_and_the_box(tmp_pat
     assert main(args) == 0
     stats = json.loads(stats_path.read_text())
     assert stats['counts']['poses'] == 20 and stats['counts']['bad_poses'] == 0
+    # Each pose comes 1 us after its frame and goes to it then: every frame got its camera.
+    assert stats['counts']['frames_with_camera'] == 20
     assert POSE_TOPIC in stats['counts']['copied']
     assert misclassification(_final_labels(tmp_path / 'out'), truth) < 0.05
 
 
-def test_poses_beyond_the_tolerance_are_not_used(tmp_path, scene_bag):
+def test_poses_beyond_the_tolerance_are_not_used(tmp_path, scene_bag, capsys):
     bag, truth = scene_bag
     stats_path = tmp_path / 'stats.json'
     # Poses come 1 us after their frames: with a tolerance of 0 ms no frame takes one, and
@@ -133,6 +135,9 @@ def test_poses_beyond_the_tolerance_are_not_used(tmp_path, scene_bag):
     plain = tmp_path / 'plain'
     assert main([str(bag), '--output', str(plain), '--set', 'budget_ms=0']) == 0
     assert np.array_equal(_final_labels(tmp_path / 'out'), _final_labels(plain))
+    assert json.loads(stats_path.read_text())['counts']['frames_with_camera'] == 0
+    assert 'none of the 20 poses on /vins_estimator/camera_pose is within pose_tolerance_ms' \
+        in capsys.readouterr().err
 
 
 def test_poses_of_another_type_are_warned_about_counted_and_left_out(tmp_path, scene_bag,

@@ -64,6 +64,7 @@ def test_poses_after_their_frames_let_the_node_find_the_static_world(ros: Ros, p
     assert error < 0.05
     # Each frame is segmented before its pose comes; the poses are all taken, late.
     assert int(values['camera poses taken']) >= 14 and values['camera poses refused'] == '0'
+    assert int(values['frames given a camera pose']) >= 14
 
 
 def test_without_a_pose_topic_there_is_no_pose_subscription(ros: Ros):
@@ -109,3 +110,22 @@ def test_pearl_play_plays_a_bags_poses_beside_its_features(ros: Ros, tmp_path):
     final = answers[-1]
     assert final is not None
     assert misclassification(final.labels[np.argsort(final.ids)], truth) < 0.05
+
+
+def test_poses_on_another_clock_are_reported_in_the_diagnostics(ros: Ros):
+    tracks, _, cameras = static_scene(frames=12, seed=10)
+    node = ros.pearl(budget_ms=0.0, pose_topic='camera_pose', **INTRINSIC_PARAMETERS)
+    probe = ros.probe()
+    poses = probe.node.create_publisher(Odometry, 'camera_pose', RELIABLE)
+    probe.wait_for(node)
+    assert ros.spin_until(lambda: poses.get_subscription_count() > 0)
+    ids = np.arange(tracks.shape[1])
+    for t in range(tracks.shape[0]):
+        stamp = START_NS + t * STEP_NS
+        probe.send(vins_cloud(stamp, ids, tracks[t]))
+        # Stamped on a clock 100 s ahead: no pose is near any frame.
+        poses.publish(Odometry(header=header(stamp + 100 * 10**9),
+                               pose=PoseWithCovariance(pose=_pose(cameras[t]))))
+    values = probe.diagnostics_where(lambda v: v.get('messages processed') == '12')
+    assert values['frames given a camera pose'] == '0' and int(values['camera poses taken']) >= 10
+    assert 'no camera pose within pose_tolerance_ms' in values['_message']
