@@ -202,6 +202,10 @@ class MessagePipeline:
         node = self._settings.node
         try:
             position, orientation = poses.read_pose(msg, node.pose_type)
+            mount = np.array([node.mount_x, node.mount_y, node.mount_z])
+            turn = np.array([node.mount_qx, node.mount_qy, node.mount_qz, node.mount_qw])
+            if mount.any() or turn[:3].any():  # else the poses are the camera's own
+                position, orientation = poses.mounted(position, orientation, mount, turn)
             intrinsics = poses.intrinsics_matrix(node.camera_fx, node.camera_fy,
                                                  node.camera_cx, node.camera_cy)
             camera = poses.camera_matrix(position, orientation, intrinsics)

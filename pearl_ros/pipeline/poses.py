@@ -80,6 +80,17 @@ def camera_matrix(position: np.ndarray, quaternion: np.ndarray,
     return projection
 
 
+def mounted(position: np.ndarray, orientation: np.ndarray, mount_position: np.ndarray,
+            mount_orientation: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The pose (position, quaternion x, y, z, w) in the world of a camera mounted at
+    ``mount_position`` / ``mount_orientation`` in a frame whose pose in the world is
+    ``position`` / ``orientation``: the composition of the two transforms."""
+    body = rotation_matrix(orientation)
+    centre = np.asarray(position, dtype=np.float64) + body @ np.asarray(mount_position,
+                                                                         dtype=np.float64)
+    return centre, quaternion(body @ rotation_matrix(mount_orientation))
+
+
 def read_pose(msg: Any, pose_type: str) -> tuple[np.ndarray, np.ndarray]:
     """The position (3,) and orientation quaternion (x, y, z, w) of an ``Odometry``
     (``pose_type`` 'odometry') or ``PoseStamped`` ('pose_stamped') message."""

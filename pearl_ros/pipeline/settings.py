@@ -96,9 +96,29 @@ class NodeConfig:
                             low=0.0, high=1e9)
     camera_cx: float = spec(0.0, 'px, principal point x', low=-1e9, high=1e9)
     camera_cy: float = spec(0.0, 'px, principal point y', low=-1e9, high=1e9)
+    mount_x: float = spec(0.0, "m, the camera's optical frame in the frame whose pose comes on "
+                          'pose_topic (its child frame, e.g. base_link): x of its origin; 0 '
+                          'with mount_y, mount_z, mount_qx, mount_qy, mount_qz and mount_qw '
+                          '1: the poses are the camera\'s own (VINS camera_pose)',
+                          low=-1e6, high=1e6)
+    mount_y: float = spec(0.0, 'm, y of the optical frame\'s origin (see mount_x)',
+                          low=-1e6, high=1e6)
+    mount_z: float = spec(0.0, 'm, z of the optical frame\'s origin (see mount_x)',
+                          low=-1e6, high=1e6)
+    mount_qx: float = spec(0.0, "x of the optical frame's orientation quaternion (see mount_x)",
+                           low=-1.0, high=1.0)
+    mount_qy: float = spec(0.0, "y of the optical frame's orientation quaternion", low=-1.0,
+                           high=1.0)
+    mount_qz: float = spec(0.0, "z of the optical frame's orientation quaternion", low=-1.0,
+                           high=1.0)
+    mount_qw: float = spec(1.0, "w of the optical frame's orientation quaternion", low=-1.0,
+                           high=1.0)
 
     def __post_init__(self) -> None:
         check_fields(self)
+        if not any((self.mount_qx, self.mount_qy, self.mount_qz, self.mount_qw)):
+            raise InputError('mount_qx, mount_qy, mount_qz, mount_qw: the quaternion of the '
+                             "camera's mounting must not be zero (identity: mount_qw 1)")
         if self.pose_topic and not (self.camera_fx > 0 and self.camera_fy > 0):
             raise InputError('pose_topic needs the camera intrinsics: camera_fx and camera_fy '
                              '> 0 (and camera_cx, camera_cy), in the pixels of the features')
@@ -109,7 +129,8 @@ NODE_NAMES = tuple(item.name for item in NODE_SPECS)
 # The node parameters the per-message pipeline reads (pearl_replay applies them too).
 PIPELINE_NAMES = ('layout', 'camera_id', 'max_features', 'background_motion', 'pose_topic',
                   'pose_type', 'pose_tolerance_ms', 'camera_fx', 'camera_fy', 'camera_cx',
-                  'camera_cy')
+                  'camera_cy', 'mount_x', 'mount_y', 'mount_z', 'mount_qx', 'mount_qy',
+                  'mount_qz', 'mount_qw')
 
 
 def _default_configs() -> tuple[Any, ...]:

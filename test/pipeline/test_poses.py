@@ -10,10 +10,11 @@ import numpy as np
 import pytest
 from rosbags.highlevel import AnyReader
 from scipy.spatial.transform import Rotation
-from static_scene import FOCAL, write_scene_bag
+from static_scene import FOCAL, pose_of, static_scene, write_scene_bag
 
 from pearl_ros.bagio.decode import decode_fields
-from pearl_ros.bagio.reader import TYPESTORE
+from pearl_ros.bagio.reader import TYPESTORE, FeatureFrame
+from pearl_ros.bagio.writer import write_feature_bag
 from pearl_ros.cli.replay import main
 from pearl_ros.core.errors import InputError
 from pearl_ros.core.metrics import misclassification
@@ -21,6 +22,7 @@ from pearl_ros.pipeline.poses import (
     PoseBuffer,
     camera_matrix,
     intrinsics_matrix,
+    mounted,
     quaternion,
     read_pose,
     rotation_matrix,
@@ -156,3 +158,52 @@ def test_poses_of_another_type_are_warned_about_counted_and_left_out(tmp_path, s
     lines = [line for line in err.splitlines() if 'nav_msgs/msg/Odometry, not' in line]
     assert len(lines) == 1, err
     assert 'geometry_msgs/msg/PoseStamped (pose_type pose_stamped)' in lines[0]
+
+
+def test_a_mounted_camera_pose_composes_the_body_pose_with_the_mounting():
+    body_position, body_q = np.array([5.0, -2.0, 0.3]), Rotation.random(random_state=3).as_quat()
+    # A camera 1.2 m up and 0.4 m ahead on a base_link (x forward, z up), looking forward:
+    # its optical z along the body's x, its optical x along the body's -y.
+    mount_position = np.array([0.4, 0.0, 1.2])
+    mount_q = Rotation.from_matrix(np.array([[0, 0, 1], [-1, 0, 0], [0, -1, 0]])).as_quat()
+    position, q = mounted(body_position, body_q, mount_position, mount_q)
+    expected = _matrix(body_position, body_q) @ _matrix(mount_position, mount_q)
+    assert np.allclose(position, expected[:3, 3])
+    assert np.allclose(rotation_matrix(q), expected[:3, :3])
+
+
+def test_the_replay_applies_the_mounting_to_body_poses(tmp_path, scene_bag):
+    bag, truth = scene_bag
+    # The same scene with the poses of a body that carries the camera 1 m to its side, turned
+    # a quarter: composed with that mounting they are the camera's again, and the labels are
+    # those of the camera's own poses.
+    mount_position = np.array([1.0, 0.0, 0.0])
+    mount_q = Rotation.from_euler('z', 90, degrees=True).as_quat()
+    tracks, truth, cameras = static_scene(frames=20, seed=7)
+    ids = np.arange(truth.size)
+    stamps = [1_000_000_000 + t * 33_333_333 for t in range(20)]
+    inverse = np.linalg.inv(_matrix(mount_position, mount_q))
+    body = []
+    for t, s in enumerate(stamps):
+        camera = _matrix(*pose_of(cameras[t])) @ inverse
+        body.append((s + 1_000, camera[:3, 3], Rotation.from_matrix(camera[:3, :3]).as_quat()))
+    body_bag = tmp_path / 'body'
+    write_feature_bag(body_bag, [FeatureFrame(s, ids, tracks[t]) for t, s in enumerate(stamps)],
+                      [(s, ids, truth) for s in stamps], poses=body, pose_topic=POSE_TOPIC)
+    common = ['--set', f'pose_topic={POSE_TOPIC}', '--set', 'pose_tolerance_ms=1', '--set',
+              'budget_ms=0', *sum((['--set', s] for s in INTRINSIC_SETTINGS), [])]
+    mount = ['--set', 'mount_x=1', *sum((['--set', f'mount_q{axis}={value}'] for axis, value
+                                         in zip('xyzw', mount_q, strict=True)), [])]
+    assert main([str(body_bag), '--output', str(tmp_path / 'mounted'), *common, *mount]) == 0
+    assert main([str(bag), '--output', str(tmp_path / 'own'), *common]) == 0
+    assert np.array_equal(_final_labels(tmp_path / 'mounted'), _final_labels(tmp_path / 'own'))
+    assert misclassification(_final_labels(tmp_path / 'mounted'), truth) < 0.05
+    with pytest.raises(InputError, match='must not be zero'):
+        NodeConfig(mount_qw=0.0)
+
+
+def _matrix(position, q):
+    out = np.eye(4)
+    out[:3, :3] = Rotation.from_quat(q).as_matrix()
+    out[:3, 3] = position
+    return out
