@@ -214,7 +214,9 @@ def _suite_items(data: Path, args: argparse.Namespace) -> list[tuple[str, Any]]:
     items: list[tuple[str, Any]] = []
     for frames, cfg in (('all', config), ('two', two)):
         items += [('hopkins', task) for task in hopkins_tasks(hop, names, args.seed, frames, cfg)]
-    items += [('stream', StreamTask(str(hop), n, config, online)) for n in names]
+    # Every stream of the suite is seeded by --seed, as its batch fits are.
+    seeded = dataclasses.replace(online, seed=args.seed)
+    items += [('stream', StreamTask(str(hop), n, config, seeded)) for n in names]
     items += [('set', Task('hopkins_outliers', str(hop / n / f'{n}_truth.mat'), 'all', config,
                            online, args.seed, SUITE_OUTLIERS)) for n in names[::SUITE_EVERY]]
     for mode in ('all', 'two', 'stream'):

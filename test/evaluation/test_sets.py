@@ -178,3 +178,22 @@ def test_a_task_error_names_its_item(tmp_path: Path) -> None:
     with pytest.raises(InputError, match='broken.mat'):
         run_task(Task('adelaide', str(tmp_path / 'broken.mat'), 'two', PearlConfig(),
                       OnlineConfig()))
+
+
+def test_every_suite_item_takes_the_seed_given(tmp_path: Path) -> None:
+    import argparse
+
+    from pearl_ros.cli.bench_sets import SET_FOLDERS, _suite_items
+
+    # The suite only lists the files here: empty ones will do.
+    for path in (f'{SET_FOLDERS["hopkins155"]}/seqa/seqa_truth.mat',
+                 f'{SET_FOLDERS["kt3dmoseg"]}/Seq001_Clip01_Tracks.mat',
+                 f'{SET_FOLDERS["adelaide"]}/pair.mat'):
+        (tmp_path / path).parent.mkdir(parents=True, exist_ok=True)
+        (tmp_path / path).touch()
+    items = _suite_items(tmp_path, argparse.Namespace(seed=7, set=[]))
+    kinds = {kind for kind, _ in items}
+    assert kinds == {'hopkins', 'stream', 'set'}
+    for kind, task in items:
+        seed = task.online.seed if kind == 'stream' else task.seed
+        assert seed == 7, (kind, task)
