@@ -50,14 +50,15 @@ def pose_of(camera: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return -rotation @ to_camera[:, 3], quaternion(rotation)
 
 
-def write_scene_bag(path, frames: int, seed: int, pose_topic: str) -> np.ndarray:
+def write_scene_bag(path, frames: int, seed: int, pose_topic: str, static: int = 120,
+                    moving: int = 40) -> np.ndarray:
     """The scene as a bag with VINS-like camera poses on ``pose_topic`` beside its features
     (``/feature_tracker/feature``) and ground truth, each pose logged just after its frame;
     returns the truth."""
     from pearl_ros.bagio.reader import FeatureFrame
     from pearl_ros.bagio.writer import write_feature_bag
 
-    tracks, truth, cameras = static_scene(frames=frames, seed=seed)
+    tracks, truth, cameras = static_scene(frames=frames, static=static, moving=moving, seed=seed)
     ids = np.arange(truth.size)
     stamps = [1_000_000_000 + t * 33_333_333 for t in range(frames)]
     write_feature_bag(path, [FeatureFrame(s, ids, tracks[t]) for t, s in enumerate(stamps)],

@@ -74,6 +74,8 @@ class FrameResult:
     reset : bool, the window was emptied before this frame because its stamp went back in time
     warm : bool, the fit was warm-started
     latency_s : float, seconds spent in :meth:`OnlineSegmenter.process`
+    static_motion : int or None, the motion number of the static world, where the frame's
+        fit had the cameras (``process``'s ``camera``) and found it; None otherwise
     """
 
     stamp_ns: int
@@ -85,6 +87,7 @@ class FrameResult:
     reset: bool
     warm: bool
     latency_s: float
+    static_motion: int | None = None
 
 
 class OnlineSegmenter:
@@ -238,28 +241,33 @@ class OnlineSegmenter:
                 segments[chosen] = result.labels
                 segments[rest] = assign(tracks[:, rest], result, config, cameras)
             motion_labels[fitted] = self._identify(segments, prior)
+            static = _static_model(result) if cameras is not None else None
+            members = np.flatnonzero(segments == static) if static is not None else fitted[:0]
+            static_motion = int(motion_labels[fitted[members[0]]]) if members.size else None
             young = np.setdiff1d(np.arange(keys.size), fitted)
             solver = self.config.solver
             tracked = young[age[young] >= solver.young_min_age] \
                 if model_name not in _TWO_VIEW else young[:0]
             newborn = np.setdiff1d(young, tracked)
             known = None
-            if cameras is not None and chosen is None:
-                known = _static_young(coords, age, tracked, cameras, result,
-                                      motion_labels[fitted])
+            if (cameras is not None and static is not None and static_motion is not None
+                    and chosen is None):
+                known = (static_motion, _static_young(coords, age, tracked, cameras,
+                                                      float(result.sigmas[static])))
             motion_labels[tracked] = _nearest_subspace(coords, age, fitted,
                                                        motion_labels[fitted], tracked, solver,
                                                        known)
             motion_labels[newborn] = _vote(uv[seen], fitted, motion_labels[fitted], newborn,
                                            self.online.neighbours)
         else:
-            span, model_name = 0, ''
+            span, model_name, static_motion = 0, '', None
         return self._answer(keys, motion_labels, seen, ids.size, stamp_ns, span,
-                            int(fitted.size) if span else 0, model_name, reset, warm, start)
+                            int(fitted.size) if span else 0, model_name, reset, warm, start,
+                            static_motion)
 
     def _answer(self, keys: np.ndarray, motion_labels: np.ndarray, seen: np.ndarray, n: int,
                 stamp_ns: int, span: int, fitted: int, model_name: str, reset: bool,
-                warm: bool, start: float) -> FrameResult:
+                warm: bool, start: float, static_motion: int | None = None) -> FrameResult:
         """The frame's result from the motion numbers of its tracks ``keys`` (the features
         ``seen`` of ``n``), which the next frame starts from."""
         labels = np.full(n, OUTLIER, dtype=np.int64)
@@ -268,7 +276,7 @@ class OnlineSegmenter:
         by_key = labelled[np.argsort(keys[labelled], kind='stable')]
         self._labelled_keys, self._labelled_motions = keys[by_key], motion_labels[by_key]
         return FrameResult(stamp_ns, labels, num_motions(motion_labels), span, fitted,
-                           model_name, reset, warm, time.perf_counter() - start)
+                           model_name, reset, warm, time.perf_counter() - start, static_motion)
 
     def _cold_slice(self, tracks: np.ndarray, fitted_keys: np.ndarray, model_name: str,
                     keys: np.ndarray, seen: np.ndarray, n: int, stamp_ns: int, reset: bool,
@@ -475,28 +483,29 @@ def _check_camera(camera: np.ndarray | None) -> np.ndarray | None:
     return camera
 
 
+def _static_model(result: PearlResult) -> int | None:
+    """The index of the static world among the models of a fit with cameras, or None."""
+    return next((k for k in range(result.num_models) if is_static(result.params[k])), None)
+
+
 def _static_young(coords: np.ndarray, age: np.ndarray, young: np.ndarray,
-                  cameras: np.ndarray, result: PearlResult, fitted_labels: np.ndarray
-                  ) -> tuple[int, np.ndarray] | None:
-    """The static world as :func:`_nearest_subspace` offers it to the ``young`` tracks: its
-    motion number in the fit ``result`` (numbered by ``fitted_labels``) and each young track's
-    squared distance to it, the sum over the track's own frames of its squared reprojection
-    error as a static point (the units of a subspace distance); infinite where the static world
-    does not explain it (a point behind the cameras, or beyond ``STATIC_YOUNG`` times the
-    static world's noise level). None when the fit holds no static world."""
-    static = [k for k in range(result.num_models) if is_static(result.params[k])]
-    members = np.flatnonzero(result.labels == static[0]) if static else np.empty(0, int)
-    if members.size == 0 or young.size == 0:
-        return None
-    limit = STATIC_YOUNG * float(result.sigmas[static[0]])
+                  cameras: np.ndarray, sigma: float) -> np.ndarray:
+    """The squared distance of each of the ``young`` tracks to the static world, as
+    :func:`_nearest_subspace` takes a known motion's: the sum over the track's own frames of
+    its squared reprojection error as a static point (the units of a subspace distance);
+    infinite where the static world does not explain it (a point behind the cameras, or beyond
+    ``STATIC_YOUNG`` times the static world's noise level ``sigma``)."""
     # All young tracks at once, each over its own frames (NaN before its birth is left out).
     points = coords[-cameras.shape[0]:, young]
     known = ~np.isnan(cameras).all(axis=(1, 2))
     used = np.count_nonzero(known[:, None] & ~np.isnan(points[..., 0]), axis=0)
+    if young.size == 0:
+        return np.empty(0)
     residual, in_front = static_residuals(cameras, points)
-    explained = in_front & (residual <= limit) & (used >= np.minimum(CAMERA_FRAMES, age[young]))
-    distance_sq = np.where(explained, used * np.square(residual), np.inf)
-    return int(fitted_labels[members[0]]), distance_sq
+    explained = in_front & (residual <= STATIC_YOUNG * sigma) & (
+        used >= np.minimum(CAMERA_FRAMES, age[young]))
+    distance_sq: np.ndarray = np.where(explained, used * np.square(residual), np.inf)
+    return distance_sq
 
 
 def _chosen(keys: np.ndarray, most: int) -> np.ndarray | None:

@@ -280,7 +280,9 @@ class MessagePipeline:
             return Skipped.because(err, malformed=False)
         labels = np.full(ids.size, encode.UNLABELLED, dtype=np.int64)
         labels[segmented] = result.labels
-        background = node.background_motion if node.background_motion >= 0 else None
+        # The static world when the cameras told which motion it is, else the largest motion.
+        background = (node.background_motion if node.background_motion >= 0
+                      else result.static_motion)
         static = encode.static_mask(labels, background)
         header = msg.header if header is None else header
         labels_msg = encode.motion_labels(header, ids, uv, labels, self._types)

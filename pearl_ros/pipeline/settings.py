@@ -71,7 +71,8 @@ class NodeConfig:
                              'is subsampled by a hash of the ids (the same ids kept every '
                              'frame), the rest labelled -1', low=1, high=10_000_000)
     background_motion: int = spec(-1, 'motion number published on static_features; -1 = the '
-                                  'motion with the most features (ties: the lowest number)',
+                                  'static world where pose_topic gives the camera poses, else '
+                                  'the motion with the most features (ties: the lowest number)',
                                   low=-1, high=_INT64)
     diagnostics_period: float = spec(1.0, 's, period of /diagnostics and of the check for '
                                      'publishers of another type on `features`',

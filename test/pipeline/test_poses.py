@@ -207,3 +207,29 @@ def _matrix(position, q):
     out[:3, :3] = Rotation.from_quat(q).as_matrix()
     out[:3, 3] = position
     return out
+
+
+def test_with_poses_static_features_are_the_static_worlds_not_the_largest_motions(tmp_path):
+    # A truck fills most of the view: 100 of its features against 60 of the static world's.
+    bag = tmp_path / 'truck'
+    truth = write_scene_bag(bag, 20, 11, POSE_TOPIC, static=60, moving=100)
+    common = ['--set', 'budget_ms=0']
+    poses = ['--set', f'pose_topic={POSE_TOPIC}', '--set', 'pose_tolerance_ms=1',
+             *sum((['--set', s] for s in INTRINSIC_SETTINGS), [])]
+    assert main([str(bag), '--output', str(tmp_path / 'poses'), *common, *poses]) == 0
+    assert main([str(bag), '--output', str(tmp_path / 'plain'), *common]) == 0
+
+    def static_ids(out: Path) -> np.ndarray:
+        with AnyReader([out], default_typestore=TYPESTORE) as reader:
+            connections = [c for c in reader.connections if c.topic == '/static_features']
+            last = list(reader.messages(connections=connections))[-1]
+            msg = reader.deserialize(last[2], last[0].msgtype)
+        ids = [c.values for c in msg.channels if c.name == 'id_of_point'][0]
+        return np.sort(np.asarray(ids, dtype=np.int64))
+
+    world = np.flatnonzero(truth == 0)
+    with_poses = static_ids(tmp_path / 'poses')
+    assert np.mean(np.isin(with_poses, world)) > 0.95 and with_poses.size > 0.9 * world.size
+    # Without poses the largest motion is taken for the background: the truck, where it was
+    # found apart.
+    assert not np.array_equal(static_ids(tmp_path / 'plain'), with_poses)
