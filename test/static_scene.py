@@ -50,11 +50,29 @@ def pose_of(camera: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return -rotation @ to_camera[:, 3], quaternion(rotation)
 
 
+def camera_info(stamp_ns: int, k: np.ndarray, binning: tuple[int, int] = (0, 0),
+                offset: tuple[int, int] = (0, 0)):
+    """A rosbags ``sensor_msgs/msg/CameraInfo`` of camera matrix ``k`` (3, 3), plumb_bob with
+    no distortion, ``binning_x``, ``binning_y`` and a region of interest at ``offset``."""
+    from pearl_ros.bagio.reader import TYPESTORE
+    from pearl_ros.bagio.writer import stamped_header
+
+    types = TYPESTORE.types
+    roi = types['sensor_msgs/msg/RegionOfInterest'](
+        x_offset=offset[0], y_offset=offset[1], height=0, width=0, do_rectify=False)
+    projection = np.hstack([np.asarray(k, dtype=np.float64), np.zeros((3, 1))])
+    return types['sensor_msgs/msg/CameraInfo'](
+        header=stamped_header(stamp_ns, 'camera'), height=480, width=640,
+        distortion_model='plumb_bob', d=np.zeros(5), k=np.asarray(k, dtype=np.float64).ravel(),
+        r=np.eye(3).ravel(), p=projection.ravel(), binning_x=binning[0], binning_y=binning[1],
+        roi=roi)
+
+
 def write_scene_bag(path, frames: int, seed: int, pose_topic: str, static: int = 120,
-                    moving: int = 40) -> np.ndarray:
+                    moving: int = 40, extra=None) -> np.ndarray:
     """The scene as a bag with VINS-like camera poses on ``pose_topic`` beside its features
-    (``/feature_tracker/feature``) and ground truth, each pose logged just after its frame;
-    returns the truth."""
+    (``/feature_tracker/feature``) and ground truth, each pose logged just after its frame,
+    and the ``extra`` messages of :func:`write_feature_bag`; returns the truth."""
     from pearl_ros.bagio.reader import FeatureFrame
     from pearl_ros.bagio.writer import write_feature_bag
 
@@ -64,5 +82,5 @@ def write_scene_bag(path, frames: int, seed: int, pose_topic: str, static: int =
     write_feature_bag(path, [FeatureFrame(s, ids, tracks[t]) for t, s in enumerate(stamps)],
                       [(s, ids, truth) for s in stamps],
                       poses=[(s + 1_000, *pose_of(cameras[t])) for t, s in enumerate(stamps)],
-                      pose_topic=pose_topic)
+                      pose_topic=pose_topic, extra=extra)
     return truth

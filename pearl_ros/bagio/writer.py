@@ -90,6 +90,7 @@ def write_feature_bag(
     storage: str = 'mcap',
     normalized: Callable[[np.ndarray], np.ndarray] | None = None,
     frame_id: str = 'camera',
+    extra: Iterable[tuple[str, int, Any]] | None = None,
 ) -> None:
     """Write tracked features, and optionally ground truth, to a new ROS 2 bag folder.
 
@@ -121,6 +122,10 @@ def write_feature_bag(
         normalised coordinates if None.
     frame_id : str
         ``header.frame_id`` of every message.
+    extra : iterable of (topic, log_time_ns, message), optional
+        Further messages as they are (rosbags message objects of :data:`TYPESTORE`, such as a
+        camera's ``sensor_msgs/msg/CameraInfo``), each on its topic, logged at its time; the
+        topics must differ from the others.
 
     Raises
     ------
@@ -142,12 +147,16 @@ def write_feature_bag(
         raise InputError(f'truth_topic must differ from topic, both are {topic!r}')
     if poses is not None and pose_topic in (topic, truth_topic):
         raise InputError(f'pose_topic must differ from the other topics, got {pose_topic!r}')
+    extras = sorted(extra or (), key=lambda item: int(item[1]))
+    taken = {topic, truth_topic, pose_topic}
+    if any(item[0] in taken for item in extras):
+        raise InputError(f'extra topics must differ from {sorted(taken)}')
     path = _ros2_path(path, storage, 'bag folder')
     if path.exists() or path.is_symlink():
         raise BagError(f'{path} exists already; delete it or choose another path')
     with staged(path) as target:
         _write(target, frames, truth, topic, truth_topic, msg_format, storage, normalized,
-               frame_id, (pose_topic, poses))
+               frame_id, (pose_topic, poses), extras)
         if path.exists() or path.is_symlink():
             raise BagError(f'{path} appeared while writing; not overwriting it')
 
@@ -163,6 +172,7 @@ def _write(
     normalized: Callable[[np.ndarray], np.ndarray] | None,
     frame_id: str,
     poses: tuple[str, Iterable[tuple[int, np.ndarray, np.ndarray]] | None] = ('', None),
+    extras: list[tuple[str, int, Any]] | None = None,
 ) -> None:
     msgtype = FORMATS[msg_format]
     encode = vins_pointcloud if msg_format == 'pointcloud' else _pointcloud2
@@ -180,7 +190,14 @@ def _write(
             if poses[1] is not None:
                 pose_connection = writer.add_connection(poses[0], ODOMETRY, typestore=TYPESTORE)
                 streams.append(_pose_messages(poses[1], frame_id, pose_connection))
-            # Both streams are in stamp order: merge them so log times never go back.
+            connections: dict[str, Any] = {}
+            for extra_topic, _, msg in extras or ():
+                if extra_topic not in connections:
+                    connections[extra_topic] = writer.add_connection(
+                        extra_topic, msg.__msgtype__, typestore=TYPESTORE)
+            streams.append(iter([(int(stamp), connections[extra_topic], msg)
+                                 for extra_topic, stamp, msg in extras or ()]))
+            # Every stream is in stamp order: merge them so log times never go back.
             for stamp, connection_, msg in heapq.merge(*streams, key=lambda item: item[0]):
                 raw = TYPESTORE.serialize_cdr(msg, connection_.msgtype)
                 writer.write(connection_, stamp, bytes(raw))

@@ -172,7 +172,10 @@ class MessagePipeline:
         self._settings = settings or Settings()
         self._types = types or encode.MessageTypes.from_typestore(TYPESTORE)
         self._segmenter = OnlineSegmenter(*self._settings.configs)
+        # Poses as world-to-optical-frame matrices [R^T | -R^T c] (3, 4): the intrinsics are
+        # applied when a frame takes its camera, so that poses may come before camera_info.
         self._poses = PoseBuffer(self._pose_tolerance_ns())
+        self._camera_info: np.ndarray | None = None  # the latest valid camera_info's k
         # Feature frames that got a camera pose, when segmented or later (a pose that came
         # after its frame): what tells a user that poses and frames meet (their clocks agree).
         self.frames_with_camera = 0
@@ -194,6 +197,37 @@ class MessagePipeline:
     def _pose_tolerance_ns(self) -> int:
         return int(round(self._settings.node.pose_tolerance_ms * 1e6))
 
+    @property
+    def intrinsics(self) -> np.ndarray | None:
+        """The camera matrix (3, 3) that poses are projected with: the latest valid
+        camera_info's where ``camera_info_topic`` is set (None before the first), else the
+        parameters' (None when they are not set)."""
+        node = self._settings.node
+        if node.camera_info_topic:
+            return self._camera_info
+        if not (node.camera_fx > 0 and node.camera_fy > 0):
+            return None
+        return poses.intrinsics_matrix(node.camera_fx, node.camera_fy, node.camera_cx,
+                                       node.camera_cy)
+
+    def add_camera_info(self, msg: Any) -> Skipped | None:
+        """Take the intrinsics of a ``sensor_msgs/msg/CameraInfo`` (rclpy's or rosbags'), for
+        ``camera_info_topic``: the frames from here on use them, and the first valid one also
+        gives the frames of the window that came without a camera theirs, from the poses
+        already taken. The :class:`Skipped` of one that cannot be used (an uncalibrated
+        camera's zero ``k``, a non-finite one), else None."""
+        try:
+            k = poses.read_intrinsics(msg)
+        except InputError as err:
+            return Skipped('camera_info', f'camera_info: {one_line(err, None)}', True)
+        first = self._camera_info is None
+        self._camera_info = k
+        if first and self._settings.node.camera_info_topic:
+            for stamp, pose in self._poses.items():
+                self.frames_with_camera += self._segmenter.set_camera(
+                    stamp, k @ pose, self._poses.tolerance_ns)
+        return None
+
     def add_pose(self, msg: Any) -> Skipped | None:
         """Take a camera pose (``pose_type``; rclpy's or rosbags' message): the feature frame
         of the nearest stamp gets its camera, whether it came before the pose or comes after.
@@ -206,16 +240,22 @@ class MessagePipeline:
             turn = np.array([node.mount_qx, node.mount_qy, node.mount_qz, node.mount_qw])
             if mount.any() or turn[:3].any():  # else the poses are the camera's own
                 position, orientation = poses.mounted(position, orientation, mount, turn)
-            intrinsics = poses.intrinsics_matrix(node.camera_fx, node.camera_fy,
-                                                 node.camera_cx, node.camera_cy)
-            camera = poses.camera_matrix(position, orientation, intrinsics)
+            pose = poses.camera_matrix(position, orientation, np.eye(3))
             stamp = decode.stamp_ns(msg.header)
         except (InputError, AttributeError, TypeError, ValueError) as err:
             return Skipped('pose', f'pose: {one_line(err, None)}', True)
-        self._poses.add(stamp, camera)
-        self.frames_with_camera += self._segmenter.set_camera(stamp, camera,
-                                                              self._poses.tolerance_ns)
+        self._poses.add(stamp, pose)
+        intrinsics = self.intrinsics
+        if intrinsics is not None:
+            self.frames_with_camera += self._segmenter.set_camera(
+                stamp, intrinsics @ pose, self._poses.tolerance_ns)
         return None
+
+    def _camera(self, stamp_ns: int) -> np.ndarray | None:
+        """The projection matrix of the frame of ``stamp_ns``: its pose's, with the intrinsics;
+        None without either."""
+        pose, intrinsics = self._poses.find(stamp_ns), self.intrinsics
+        return None if pose is None or intrinsics is None else intrinsics @ pose
 
     def reset(self) -> None:
         """Empty the window: the next message starts afresh."""
@@ -273,7 +313,7 @@ class MessagePipeline:
         segmented = encode.subsample_mask(ids, node.max_features)
         stamp = decode.stamp_ns(msg.header)
         try:
-            camera = self._poses.find(stamp) if node.pose_topic else None
+            camera = self._camera(stamp) if node.pose_topic else None
             result = self._segmenter.process(stamp, ids[segmented], uv[segmented], camera)
             self.frames_with_camera += camera is not None
         except InputError as err:  # a stamp equal to the last: the window is unchanged

@@ -4,9 +4,10 @@ A robot that knows where its camera is (visual-inertial odometry such as VINS' `
 wheel odometry composed with the camera's mounting) publishes it as ``nav_msgs/msg/Odometry``
 or ``geometry_msgs/msg/PoseStamped``: the pose of the camera's optical frame (z forward, x
 right, y down, REP 103's ``_optical`` frames) in a fixed world frame. With the camera's
-intrinsics (pixels from the optical frame), each pose is one projection matrix
-``K [R^T | -R^T c]``, where ``R`` and ``c`` are the camera's orientation and position in the
-world. Poses and feature frames meet by stamp (:class:`PoseBuffer`).
+intrinsics (pixels from the optical frame: parameters, or ``sensor_msgs/msg/CameraInfo``'s
+``k``), each pose is one projection matrix ``K [R^T | -R^T c]``, where ``R`` and ``c`` are the
+camera's orientation and position in the world. Poses and feature frames meet by stamp
+(:class:`PoseBuffer`).
 
 ROS-free: messages are read by attribute (rclpy's and rosbags' alike).
 """
@@ -21,6 +22,7 @@ import numpy as np
 
 from pearl_ros.core.errors import InputError
 
+CAMERA_INFO = 'sensor_msgs/msg/CameraInfo'
 POSE_TYPES = {'odometry': 'nav_msgs/msg/Odometry', 'pose_stamped': 'geometry_msgs/msg/PoseStamped'}
 # Poses kept for frames to find theirs: a second of 200 Hz odometry.
 POSE_CAPACITY = 200
@@ -33,6 +35,44 @@ def intrinsics_matrix(fx: float, fy: float, cx: float, cy: float) -> np.ndarray:
         raise InputError(f'camera intrinsics must be finite with fx, fy > 0, got fx={fx!r}, '
                          f'fy={fy!r}, cx={cx!r}, cy={cy!r}')
     return np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
+
+
+def read_intrinsics(msg: Any) -> np.ndarray:
+    """The 3 x 3 camera matrix ``k`` of a ``sensor_msgs/msg/CameraInfo`` message: finite,
+    ``fx``, ``fy`` > 0 and last row (0, 0, 1) (an uncalibrated camera's all-zero ``k`` is
+    refused), for the pixels of the binned, cropped image it describes (``binning_x``,
+``binning_y``, ``roi``). Its lens distortion is not used: the features' pixels are taken as
+they are."""
+    try:
+        k = np.asarray(msg.k, dtype=np.float64)
+    except AttributeError as err:
+        raise InputError(f'not a sensor_msgs/msg/CameraInfo message: {err}') from err
+    except (TypeError, ValueError) as err:
+        raise InputError(f'camera_info k must be 9 numbers: {err}') from err
+    if k.size != 9:
+        raise InputError(f'camera_info k must be 9 numbers, got {k.size}')
+    k = k.reshape(3, 3)
+    if not np.array_equal(k[2], (0.0, 0.0, 1.0)):
+        raise InputError(f'camera_info k must end in the row (0, 0, 1) (all zero: an '
+                         f'uncalibrated camera), got {k.tolist()}')
+    if not np.isfinite(k).all() or k[1, 0] != 0.0:
+        raise InputError(f'camera_info k must be finite, [fx s cx; 0 fy cy; 0 0 1], got '
+                         f'{k.tolist()}')
+    intrinsics_matrix(float(k[0, 0]), float(k[1, 1]), float(k[0, 2]), float(k[1, 2]))  # checks
+    # The pixels of a binned or cropped image (REP 104): shift by the region of interest, then
+    # divide by the binning (0 means 1), as image_geometry does.
+    bin_x = int(getattr(msg, 'binning_x', 0) or 1)
+    bin_y = int(getattr(msg, 'binning_y', 0) or 1)
+    roi = getattr(msg, 'roi', None)
+    x0 = float(getattr(roi, 'x_offset', 0)) if roi is not None else 0.0
+    y0 = float(getattr(roi, 'y_offset', 0)) if roi is not None else 0.0
+    if (bin_x, bin_y, x0, y0) != (1, 1, 0.0, 0.0):
+        k = k.copy()
+        k[0, 2] -= x0
+        k[1, 2] -= y0
+        k[0] /= bin_x
+        k[1] /= bin_y
+    return k
 
 
 def rotation_matrix(quaternion: np.ndarray) -> np.ndarray:
@@ -135,6 +175,10 @@ class PoseBuffer:
             self.clear()
         self._stamps.append(int(stamp_ns))
         self._cameras.append(camera)
+
+    def items(self) -> list[tuple[int, np.ndarray]]:
+        """The ``(stamp_ns, camera)`` kept, oldest first."""
+        return list(zip(self._stamps, self._cameras, strict=True))
 
     def find(self, stamp_ns: int) -> np.ndarray | None:
         """The camera nearest ``stamp_ns`` within the tolerance, or None."""

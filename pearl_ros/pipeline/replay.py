@@ -42,7 +42,7 @@ from pearl_ros.bagio.writer import is_bag, open_output_bag
 from pearl_ros.core.errors import BagError, InputError
 from pearl_ros.online.config import setting_values
 from pearl_ros.pipeline.messages import Labelled, MessagePipeline, Skipped
-from pearl_ros.pipeline.poses import POSE_TYPES
+from pearl_ros.pipeline.poses import CAMERA_INFO, POSE_TYPES
 from pearl_ros.pipeline.settings import PIPELINE_NAMES, Settings
 
 INPUT_TOPIC = '/feature_tracker/feature'
@@ -102,6 +102,8 @@ class ReplayStats:
     poses: int = 0  # camera poses taken from pose_topic
     bad_poses: int = 0  # camera poses that could not be read or used
     frames_with_camera: int = 0  # feature frames that got a camera pose
+    camera_infos: int = 0  # camera_info messages taken from camera_info_topic
+    bad_camera_infos: int = 0  # camera_info messages that could not be read or used
     messages: int = 0
     wall_s: float = 0.0
 
@@ -120,6 +122,8 @@ class ReplayStats:
             'poses': self.poses,
             'bad_poses': self.bad_poses,
             'frames_with_camera': self.frames_with_camera,
+            'camera_infos': self.camera_infos,
+            'bad_camera_infos': self.bad_camera_infos,
         }
 
     def summary(self) -> dict[str, Any]:
@@ -197,8 +201,11 @@ def replay(
     pipeline = MessagePipeline(settings.settings, MESSAGE_TYPES)
     copy_topics: tuple[str, ...] = (settings.truth_topic,) if settings.truth_topic else ()
     pose_topic = settings.settings.node.pose_topic
+    info_topic = settings.settings.node.camera_info_topic if pose_topic else ''
     if pose_topic:  # read for the pipeline, and copied as the truth is
         copy_topics += (pose_topic,)
+    if info_topic and info_topic not in copy_topics:
+        copy_topics += (info_topic,)
     with open_feature_stream(in_bag, settings.input_topic, copy_topics) as stream:
         stats = ReplayStats(
             input=str(in_bag), output=str(out_bag), input_topic=settings.input_topic,
@@ -217,7 +224,10 @@ def replay(
                 out.add_topic(topic, msgtype)
             _run(stream, pipeline, settings, out, stats, warn, progress)
             stats.frames_with_camera = pipeline.frames_with_camera
-            if stats.poses and not stats.frames_with_camera:
+            if stats.poses and info_topic and not stats.camera_infos:
+                warn(-1, Skipped('camera_info_missing', f'no valid {CAMERA_INFO} on '
+                                 f'{info_topic}: segmented without the poses', False))
+            elif stats.poses and not stats.frames_with_camera:
                 warn(-1, Skipped('pose_unmatched', f'none of the {stats.poses} poses on '
                                  f'{pose_topic} is within pose_tolerance_ms of a feature '
                                  'frame (clocks that differ?): segmented without them', False))
@@ -240,8 +250,8 @@ def _run(stream: FeatureStream, pipeline: MessagePipeline, settings: ReplaySetti
     node = settings.settings.node
     for item in stream:
         if isinstance(item, CopiedMessage):
-            if item.topic == node.pose_topic:
-                _take_pose(item, pipeline, stats, warn)
+            if node.pose_topic and item.topic in (node.pose_topic, node.camera_info_topic):
+                _take_recorded(item, pipeline, stats, warn)
             _copy(item, out, stats, warn)
             continue
         if item.msg is None:
@@ -254,29 +264,37 @@ def _run(stream: FeatureStream, pipeline: MessagePipeline, settings: ReplaySetti
             progress(done, stream.count)  # counts feature messages only
 
 
-def _take_pose(item: CopiedMessage, pipeline: MessagePipeline, stats: ReplayStats,
-               warn: WarnCallback) -> None:
-    """Hand a recorded camera pose to the pipeline; count it, or warn about it."""
+def _take_recorded(item: CopiedMessage, pipeline: MessagePipeline, stats: ReplayStats,
+                   warn: WarnCallback) -> None:
+    """Hand a recorded camera pose (``pose_topic``) or camera_info (``camera_info_topic``) to
+    the pipeline; count it, or warn about it."""
     node = pipeline.settings.node
-    expected = POSE_TYPES[node.pose_type]
-    skip: Skipped | None
-    if item.cdr is None:
-        skip = Skipped('pose', f'pose: {item.error}', True)
-    elif item.msgtype != expected:
-        skip = Skipped('pose', f'pose: {node.pose_topic} carries {item.msgtype}, not '
-                       f'{expected} (pose_type {node.pose_type})', True)
+    if item.topic == node.pose_topic:
+        msg = _recorded(item, POSE_TYPES[node.pose_type], 'pose',
+                        f' (pose_type {node.pose_type})')
+        take, good, bad = pipeline.add_pose, 'poses', 'bad_poses'
     else:
-        try:
-            msg = TYPESTORE.deserialize_cdr(item.cdr, item.msgtype)
-        except Exception as err:  # rosbags raises several kinds on damaged bytes
-            skip = Skipped('pose', f'pose: {cdr.unreadable(item.msgtype, err)}', True)
-        else:
-            skip = pipeline.add_pose(msg)
-    if skip is None:
-        stats.poses += 1
-        return
-    stats.bad_poses += 1
-    warn(-1, skip)
+        msg = _recorded(item, CAMERA_INFO, 'camera_info')
+        take, good, bad = pipeline.add_camera_info, 'camera_infos', 'bad_camera_infos'
+    skip = msg if isinstance(msg, Skipped) else take(msg)
+    counter = good if skip is None else bad
+    setattr(stats, counter, getattr(stats, counter) + 1)
+    if skip is not None:
+        warn(-1, skip)
+
+
+def _recorded(item: CopiedMessage, expected: str, kind: str, hint: str = '') -> Any:
+    """The message of a recorded ``item`` of type ``expected``, or the :class:`Skipped`
+    (``kind``) of one that is unreadable or of another type (``hint`` ends that line)."""
+    if item.cdr is None:
+        return Skipped(kind, f'{kind}: {item.error}', True)
+    if item.msgtype != expected:
+        return Skipped(kind, f'{kind}: {item.topic} carries {item.msgtype}, not '
+                       f'{expected}{hint}', True)
+    try:
+        return TYPESTORE.deserialize_cdr(item.cdr, item.msgtype)
+    except Exception as err:  # rosbags raises several kinds on damaged bytes
+        return Skipped(kind, f'{kind}: {cdr.unreadable(item.msgtype, err)}', True)
 
 
 def _check_topics(settings: ReplaySettings) -> None:

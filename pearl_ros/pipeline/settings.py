@@ -83,18 +83,25 @@ class NodeConfig:
                             "their motion's colour); empty = off")
     pose_topic: str = spec('', "the camera's pose in a fixed world frame, per frame (a robot's "
                            'odometry, such as VINS\' camera_pose): the pose of its optical frame '
-                           '(z forward, x right, y down), of type pose_type; with camera_fx, '
-                           'camera_fy, camera_cx, camera_cy, the static world becomes a motion '
+                           '(z forward, x right, y down), of type pose_type; with the '
+                           'intrinsics (camera_info_topic, or camera_fx, camera_fy, camera_cx, '
+                           'camera_cy), the static world becomes a motion '
                            'of known parameters; empty = off')
     pose_type: str = spec('odometry', 'message type on pose_topic: odometry '
                           '(nav_msgs/msg/Odometry) or pose_stamped '
                           '(geometry_msgs/msg/PoseStamped)', choices=POSE_CHOICES)
     pose_tolerance_ms: float = spec(10.0, 'ms, the most a pose\'s stamp may differ from its '
                                     "feature frame's", low=0.0, high=1e6)
+    camera_info_topic: str = spec('', 'sensor_msgs/msg/CameraInfo topic of the camera whose '
+                                  'features are segmented: with pose_topic, its k (for the '
+                                  'binning and roi it gives) replaces camera_fx, camera_fy, '
+                                  'camera_cx, camera_cy, the latest valid one in use; frames '
+                                  'before the first get no camera; empty = the parameters')
     camera_fx: float = spec(0.0, 'px, focal length along x of the camera whose features are '
-                            'segmented (needed with pose_topic)', low=0.0, high=1e9)
-    camera_fy: float = spec(0.0, 'px, focal length along y (needed with pose_topic)',
+                            'segmented (needed with pose_topic, unless camera_info_topic)',
                             low=0.0, high=1e9)
+    camera_fy: float = spec(0.0, 'px, focal length along y (needed with pose_topic, unless '
+                            'camera_info_topic)', low=0.0, high=1e9)
     camera_cx: float = spec(0.0, 'px, principal point x', low=-1e9, high=1e9)
     camera_cy: float = spec(0.0, 'px, principal point y', low=-1e9, high=1e9)
     mount_x: float = spec(0.0, "m, the camera's optical frame in the frame whose pose comes on "
@@ -120,18 +127,20 @@ class NodeConfig:
         if not any((self.mount_qx, self.mount_qy, self.mount_qz, self.mount_qw)):
             raise InputError('mount_qx, mount_qy, mount_qz, mount_qw: the quaternion of the '
                              "camera's mounting must not be zero (identity: mount_qw 1)")
-        if self.pose_topic and not (self.camera_fx > 0 and self.camera_fy > 0):
-            raise InputError('pose_topic needs the camera intrinsics: camera_fx and camera_fy '
-                             '> 0 (and camera_cx, camera_cy), in the pixels of the features')
+        if (self.pose_topic and not self.camera_info_topic
+                and not (self.camera_fx > 0 and self.camera_fy > 0)):
+            raise InputError('pose_topic needs the camera intrinsics: camera_info_topic, or '
+                             'camera_fx and camera_fy > 0 (and camera_cx, camera_cy), in the '
+                             'pixels of the features')
 
 
 NODE_SPECS: tuple[ParameterSpec, ...] = parameter_specs(NodeConfig)
 NODE_NAMES = tuple(item.name for item in NODE_SPECS)
 # The node parameters the per-message pipeline reads (pearl_replay applies them too).
 PIPELINE_NAMES = ('layout', 'camera_id', 'max_features', 'background_motion', 'pose_topic',
-                  'pose_type', 'pose_tolerance_ms', 'camera_fx', 'camera_fy', 'camera_cx',
-                  'camera_cy', 'mount_x', 'mount_y', 'mount_z', 'mount_qx', 'mount_qy',
-                  'mount_qz', 'mount_qw')
+                  'pose_type', 'pose_tolerance_ms', 'camera_info_topic', 'camera_fx', 'camera_fy',
+                  'camera_cx', 'camera_cy', 'mount_x', 'mount_y', 'mount_z', 'mount_qx',
+                  'mount_qy', 'mount_qz', 'mount_qw')
 
 
 def _default_configs() -> tuple[Any, ...]:

@@ -21,12 +21,17 @@ Topics (names relative to the node's namespace unless absolute)
 ``pose_topic`` (in, when the parameter names one)
     The camera's pose in a fixed world frame (its optical frame: z forward, x right, y down),
     ``nav_msgs/msg/Odometry`` or ``geometry_msgs/msg/PoseStamped`` (parameter ``pose_type``),
-    such as VINS' ``camera_pose``; with the intrinsics ``camera_fx``, ``camera_fy``,
-    ``camera_cx``, ``camera_cy`` of the features' pixels. Each pose goes to the feature frame
+    such as VINS' ``camera_pose``; with the intrinsics of the features' pixels, from
+    ``camera_info_topic`` or the parameters ``camera_fx``, ``camera_fy``, ``camera_cx``,
+    ``camera_cy``. Each pose goes to the feature frame
     of the nearest stamp (within ``pose_tolerance_ms``), whether it comes before or after it
     (:class:`~pearl_ros.pipeline.poses.PoseBuffer`); the static world is then a motion of known
     parameters (:mod:`pearl_ros.core.models.ego`). Poses wait for the worker, which takes them
     before its next frame.
+``camera_info_topic`` (in, with ``pose_topic``, when the parameter names one)
+    ``sensor_msgs/msg/CameraInfo`` of the camera whose features are segmented (best effort, as
+    camera drivers publish it): the latest valid ``k`` (with its binning and region of
+    interest) gives the intrinsics.
 
 Service ``~/reset`` (``std_srvs/srv/Trigger``) empties the window.
 
@@ -81,7 +86,7 @@ from rclpy.exceptions import NameValidationException
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
-from sensor_msgs.msg import Image, PointCloud2
+from sensor_msgs.msg import CameraInfo, Image, PointCloud2
 from std_srvs.srv import Trigger
 
 from pearl_ros.bagio import cdr, decode
@@ -135,6 +140,8 @@ class Stats:
     poses: int = 0  # camera poses taken from pose_topic
     bad_poses: int = 0  # unreadable poses (zero quaternion, non-finite position)
     frames_with_camera: int = 0  # feature frames that got a camera pose
+    camera_infos: int = 0  # camera_info messages taken from camera_info_topic
+    bad_camera_infos: int = 0  # camera_info messages refused (uncalibrated, non-finite k)
     annotated: int = 0  # image_labels published
     bad_images: int = 0  # unsupported encoding, or step / data that do not fit
     incompatible_qos: int = 0  # publishers whose QoS the subscription cannot match
@@ -315,6 +322,7 @@ class PearlNode(Node):
         # Poses wait here for the worker, which hands them to the pipeline before its next
         # frame: the executor's thread never waits for a frame being segmented.
         self._pending_poses: deque[Any] = deque(maxlen=POSE_BACKLOG)
+        self._pending_info: Any = None  # the newest camera_info not yet taken
         if node.pose_topic:
             self._subscribe_poses(node)
         self.add_pre_set_parameters_callback(_ints_as_floats)
@@ -362,13 +370,36 @@ class PearlNode(Node):
                              f'{reason}') from err
         self.get_logger().info(f'taking camera poses ({node.pose_type}) from '
                                f'{self._pose_sub.topic_name}')
+        if not node.camera_info_topic:
+            return
+        try:
+            self._info_sub = self.create_subscription(
+                CameraInfo, node.camera_info_topic, self._on_camera_info,
+                input_qos('sensor_data', 1))
+        except NameValidationException as err:
+            self.destroy_node()
+            reason = str(err).splitlines()[0].rstrip(':').split(': ', 1)[-1]
+            raise InputError(f'camera_info_topic {node.camera_info_topic!r} is not a valid '
+                             f'topic name: {reason}') from err
+        self.get_logger().info(f'taking the intrinsics from {self._info_sub.topic_name}')
 
     def _on_pose(self, msg: Any) -> None:
         self._pending_poses.append(msg)
 
+    def _on_camera_info(self, msg: Any) -> None:
+        self._pending_info = msg  # only the newest matters
+
     def _take_poses(self) -> None:
         """Hand the poses that came since the last frame to the pipeline (under
         ``_pipeline_lock``); count them, and warn about unreadable ones."""
+        info, self._pending_info = self._pending_info, None
+        if info is not None:
+            skip = self._pipeline.add_camera_info(info)
+            if skip is not None:
+                self._warn('camera_info', f'{skip.line}: the intrinsics stay as they were')
+            with self._lock:
+                self.stats.camera_infos += skip is None
+                self.stats.bad_camera_infos += skip is not None
         taken = bad = 0
         while self._pending_poses:
             skip = self._pipeline.add_pose(self._pending_poses.popleft())
@@ -673,6 +704,10 @@ class PearlNode(Node):
                 **({'camera poses taken': stats.poses, 'camera poses refused': stats.bad_poses,
                     'frames given a camera pose': stats.frames_with_camera}
                    if self.settings.node.pose_topic else {}),
+                **({'camera_info taken': stats.camera_infos,
+                    'camera_info refused': stats.bad_camera_infos}
+                   if self.settings.node.pose_topic and self.settings.node.camera_info_topic
+                   else {}),
                 **image_values,
             }
             stats.period_start, stats.period_received, stats.period_problems = now, 0, 0
@@ -697,7 +732,12 @@ class PearlNode(Node):
                             'or malformed')
         if not stats.period_received:
             problems.append('no input')
-        if stats.poses and stats.processed >= UNMATCHED_FRAMES and not stats.frames_with_camera:
+        node = self.settings.node
+        if (node.pose_topic and node.camera_info_topic and stats.processed >= UNMATCHED_FRAMES
+                and not stats.camera_infos):
+            problems.append(f'no valid camera_info on {node.camera_info_topic}: frames get no '
+                            'camera')
+        elif stats.poses and stats.processed >= UNMATCHED_FRAMES and not stats.frames_with_camera:
             problems.append('no camera pose within pose_tolerance_ms of any feature frame '
                             '(clocks that differ?)')
         return problems

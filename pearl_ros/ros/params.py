@@ -33,7 +33,7 @@ from pearl_ros.pipeline.settings import NODE_SPECS
 _INT64 = 2**63 - 1
 
 READ_ONLY = frozenset({'msg_type', 'qos', 'qos_depth', 'queue_policy', 'diagnostics_period',
-                       'image_topic', 'pose_topic', 'pose_type'})
+                       'image_topic', 'pose_topic', 'pose_type', 'camera_info_topic'})
 CONFIG_SPECS: tuple[ParameterSpec, ...] = parameter_specs(PearlConfig) + parameter_specs(
     OnlineConfig)
 ALL_SPECS: tuple[ParameterSpec, ...] = CONFIG_SPECS + NODE_SPECS

@@ -5,7 +5,9 @@ Not a ``ros2 bag play``: it publishes one message, waits for that message's ``mo
 (matched by stamp), then the next, at most at ``--rate`` Hz. So nothing is lost to queue depths
 and every frame's answer is accounted for, whatever the node's speed. With ``--poses TOPIC``
 the bag's camera poses on that topic are published too, on the same name, each before the
-first frame whose stamp is not earlier than its own (a node with ``pose_topic`` takes them).
+first frame whose stamp is not earlier than its own (a node with ``pose_topic`` takes them),
+and so are its camera's ``sensor_msgs/msg/CameraInfo`` with ``--camera-info TOPIC`` (for a node
+with ``camera_info_topic``).
 
 Example (``make demo`` does this; ``--msg-type`` prints the bag's feature message type, which
 the node must be told)::
@@ -35,12 +37,13 @@ from rclpy.executors import Executor, ExternalShutdownException, SingleThreadedE
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from rclpy.serialization import deserialize_message
-from sensor_msgs.msg import PointCloud2
+from sensor_msgs.msg import CameraInfo, PointCloud2
 
 from pearl_ros import scoring
 from pearl_ros.bagio import cdr, decode, reader
 from pearl_ros.core.errors import BagError, PearlError, UsageParser, one_line
 from pearl_ros.pipeline.messages import MessagePipeline, Skipped, SkipWarnings
+from pearl_ros.pipeline.poses import CAMERA_INFO
 from pearl_ros.ros import convert
 
 FEATURE_TOPIC = '/feature_tracker/feature'
@@ -80,14 +83,15 @@ class BagFeatures:
 
 @dataclass(frozen=True)
 class BagPoses:
-    """The camera poses of a bag, ready to publish beside its feature messages.
+    """The camera poses of a bag (or its camera_info), ready to publish beside its feature
+    messages.
 
     Attributes
     ----------
     topic : str
-    msg_class : type, rclpy's ``Odometry`` or ``PoseStamped``
+    msg_class : type, rclpy's ``Odometry``, ``PoseStamped`` or ``CameraInfo``
     stamps : list of int, ns, header stamps, in recording order
-    raw : list of bytes, each pose's ROS 2 CDR
+    raw : list of bytes, each message's ROS 2 CDR
     """
 
     topic: str
@@ -96,19 +100,25 @@ class BagPoses:
     raw: list[bytes]
 
 
-def load_poses(path: str | Path, topic: str, feature_topic: str = FEATURE_TOPIC) -> BagPoses:
+POSE_CLASSES = {'nav_msgs/msg/Odometry': Odometry, 'geometry_msgs/msg/PoseStamped': PoseStamped}
+CAMERA_INFO_CLASSES = {CAMERA_INFO: CameraInfo}
+
+
+def load_poses(path: str | Path, topic: str, feature_topic: str = FEATURE_TOPIC,
+               classes: dict[str, Any] | None = None) -> BagPoses:
     """The messages of the pose ``topic`` of a bag (``nav_msgs/msg/Odometry`` or
-    ``geometry_msgs/msg/PoseStamped``), as ROS 2 CDR with their stamps.
+    ``geometry_msgs/msg/PoseStamped``; or those of ``classes``, type name -> rclpy class, such
+    as :data:`CAMERA_INFO_CLASSES`), as ROS 2 CDR with their stamps.
 
     Raises
     ------
     BagError
-        No such topic, or another type on it; a pose that cannot be read.
+        No such topic, or another type on it; a message that cannot be read.
     """
+    classes = classes or POSE_CLASSES
     kinds = reader.topics(path)
     if topic not in kinds:
         raise BagError(f'{path}: no topic {topic!r}; topics: {", ".join(kinds) or "none"}')
-    classes = {'nav_msgs/msg/Odometry': Odometry, 'geometry_msgs/msg/PoseStamped': PoseStamped}
     if kinds[topic] not in classes:
         raise BagError(f'{path}: topic {topic} has type {kinds[topic]}, expected '
                        f'{" or ".join(classes)}')
@@ -118,7 +128,7 @@ def load_poses(path: str | Path, topic: str, feature_topic: str = FEATURE_TOPIC)
             if not isinstance(item, reader.CopiedMessage):
                 continue
             if item.cdr is None:
-                raise BagError(f'{path}: a pose on {topic} cannot be read: {item.error}')
+                raise BagError(f'{path}: a message on {topic} cannot be read: {item.error}')
             msg: Any = reader.TYPESTORE.deserialize_cdr(item.cdr, item.msgtype)
             stamps.append(decode.stamp_ns(msg.header))
             raw.append(item.cdr)
@@ -219,7 +229,8 @@ class Player(Node):
 
     def __init__(self, messages: Sequence[Any], *, features_topic: str = 'features',
                  labels_topic: str = 'motion_labels', node_name: str = 'pearl_play',
-                 poses: BagPoses | None = None, **kwargs: Any) -> None:
+                 poses: BagPoses | None = None, camera_info: BagPoses | None = None,
+                 **kwargs: Any) -> None:
         super().__init__(node_name, **kwargs)
         if not messages:
             raise PearlError('no messages to play')
@@ -232,6 +243,13 @@ class Player(Node):
             pose_qos = QoSProfile(depth=len(poses.raw) + 1,
                                   reliability=ReliabilityPolicy.RELIABLE)
             self.pose_publisher = self.create_publisher(poses.msg_class, poses.topic, pose_qos)
+        self.camera_info = camera_info
+        self.camera_info_sent = 0
+        if camera_info is not None:
+            info_qos = QoSProfile(depth=len(camera_info.raw) + 1,
+                                  reliability=ReliabilityPolicy.RELIABLE)
+            self.camera_info_publisher = self.create_publisher(
+                camera_info.msg_class, camera_info.topic, info_qos)
         self.answers: dict[int, Answer] = {}
         self._sub = self.create_subscription(PointCloud2, labels_topic, self._on_labels, qos)
 
@@ -291,6 +309,11 @@ class Player(Node):
         """Publish the poses not sent yet whose stamps are at most ``stamp_ns``: each frame's
         pose reaches the node before the frame (a pose that comes after its frame serves
         too, for the frames that follow)."""
+        info = self.camera_info
+        while (info is not None and self.camera_info_sent < len(info.raw)
+               and info.stamps[self.camera_info_sent] <= stamp_ns):
+            self.camera_info_publisher.publish(info.raw[self.camera_info_sent])
+            self.camera_info_sent += 1
         poses = self.poses
         if poses is None:
             return
@@ -335,6 +358,10 @@ def build_parser() -> argparse.ArgumentParser:
                         help="the bag's camera pose topic (nav_msgs/msg/Odometry or "
                         'geometry_msgs/msg/PoseStamped), published on the same name before '
                         "each frame, for a pearl_node with pose_topic; empty = none")
+    parser.add_argument('--camera-info', default='', metavar='TOPIC',
+                        help="the bag's sensor_msgs/msg/CameraInfo topic, published on the same "
+                        'name before each frame, for a pearl_node with camera_info_topic; '
+                        'empty = none')
     parser.add_argument('--rate', type=float, default=10.0, help='Hz, at most (0 = no limit)')
     parser.add_argument('--timeout', type=float, default=5.0,
                         help='s, wait for the node (discovery) and for each answer')
@@ -357,6 +384,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         bag = load_bag(args.bag, args.topic)
         truth = _truth(args.bag, args.truth_topic)
         poses = load_poses(args.bag, args.poses, args.topic) if args.poses else None
+        info = (load_poses(args.bag, args.camera_info, args.topic, CAMERA_INFO_CLASSES)
+                if args.camera_info else None)
     except PearlError as err:
         print(f'error: {err}', file=sys.stderr)
         return 1
@@ -369,7 +398,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         executor = SingleThreadedExecutor()
         player = Player(bag.messages, features_topic=args.features, labels_topic=args.labels,
-                        poses=poses)
+                        poses=poses, camera_info=info)
         executor.add_node(player)
         if not player.wait_for_node(executor, args.timeout):
             print(f'error: {_not_found(player, bag.msg_type, args)}', file=sys.stderr)
@@ -416,6 +445,8 @@ def _play(player: Player, executor: Executor, bag: BagFeatures,
     print(f'{len(answers) - missing}/{len(answers)} frames answered by pearl_node')
     if player.poses is not None:
         print(f'{player.poses_sent} camera poses played on {player.poses.topic}')
+    if player.camera_info is not None:
+        print(f'{player.camera_info_sent} camera_info played on {player.camera_info.topic}')
     if truth is not None:
         for line in scoring.summary_lines(scoring.summarise(rows)):
             print(line)

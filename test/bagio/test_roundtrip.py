@@ -191,3 +191,22 @@ def test_feature_frame_checks_shapes_and_coerces_types() -> None:
         FeatureFrame(0, [1.5], [[1.0, 2.0]])
     with pytest.raises(InputError, match='repeats'):
         FeatureFrame(0, [1, 1], [[1.0, 2.0], [3.0, 4.0]])
+
+
+def test_extra_messages_are_written_as_they_are_on_their_topics(tmp_path: Path) -> None:
+    from static_scene import camera_info
+
+    frames = random_frames(seed=7, num_frames=3)
+    k = np.array([[400.0, 0.0, 320.0], [0.0, 410.0, 240.0], [0.0, 0.0, 1.0]])
+    # Given out of order: written in log-time order, beside the features.
+    extra = [('/cam/info', f.stamp_ns + 5, camera_info(f.stamp_ns, k * [[i + 1], [1], [1]]))
+             for i, f in enumerate(frames)][::-1]
+    path = tmp_path / 'features'
+    write_feature_bag(path, frames, extra=extra)
+    assert topics(path)['/cam/info'] == 'sensor_msgs/msg/CameraInfo'
+    back = raw_messages(path, '/cam/info')
+    assert [m.k[0] for m in back] == [400.0, 800.0, 1200.0]
+    assert [m.header.stamp.sec * 10**9 + m.header.stamp.nanosec for m in back] == [
+        f.stamp_ns for f in frames]
+    with pytest.raises(InputError, match='extra topics must differ'):
+        write_feature_bag(tmp_path / 'clash', frames, extra=[(TOPIC, T0, extra[0][2])])

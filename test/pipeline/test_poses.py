@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from rosbags.highlevel import AnyReader
 from scipy.spatial.transform import Rotation
-from static_scene import FOCAL, pose_of, static_scene, write_scene_bag
+from static_scene import FOCAL, INTRINSICS, camera_info, pose_of, static_scene, write_scene_bag
 
 from pearl_ros.bagio.decode import decode_fields
 from pearl_ros.bagio.reader import TYPESTORE, FeatureFrame
@@ -24,6 +24,7 @@ from pearl_ros.pipeline.poses import (
     intrinsics_matrix,
     mounted,
     quaternion,
+    read_intrinsics,
     read_pose,
     rotation_matrix,
 )
@@ -233,3 +234,85 @@ def test_with_poses_static_features_are_the_static_worlds_not_the_largest_motion
     # Without poses the largest motion is taken for the background: the truck, where it was
     # found apart.
     assert not np.array_equal(static_ids(tmp_path / 'plain'), with_poses)
+
+
+def test_camera_info_gives_the_intrinsics_of_the_binned_cropped_image_it_describes():
+    k = np.array([[410.0, 0.5, 330.0], [0.0, 400.0, 250.0], [0.0, 0.0, 1.0]])
+    assert np.array_equal(read_intrinsics(camera_info(0, k)), k)
+    # A full-resolution pixel, and the same pixel in the image cropped at (40, 30) and binned
+    # by 2 x 4: ((u - 40) / 2, (v - 30) / 4).
+    rng = np.random.default_rng(0)
+    points = np.column_stack([rng.uniform(-2, 2, 10), rng.uniform(-2, 2, 10),
+                              rng.uniform(3, 9, 10)])
+    full = points @ k.T
+    full = full[:, :2] / full[:, 2:]
+    binned = points @ read_intrinsics(camera_info(0, k, (2, 4), (40, 30))).T
+    assert np.allclose(binned[:, :2] / binned[:, 2:],
+                       np.column_stack([(full[:, 0] - 40) / 2, (full[:, 1] - 30) / 4]))
+
+
+@pytest.mark.parametrize('k, words', [
+    (np.zeros((3, 3)), 'uncalibrated'),
+    (np.array([[400.0, 0, 320], [0, -400.0, 240], [0, 0, 1]]), 'fx, fy > 0'),
+    (np.array([[np.nan, 0, 320], [0, 400.0, 240], [0, 0, 1]]), 'finite'),
+    (np.array([[400.0, 0, 320], [5.0, 400.0, 240], [0, 0, 1]]), '0 fy cy'),
+])
+def test_camera_info_that_is_no_calibration_is_refused_in_one_line(k, words):
+    with pytest.raises(InputError, match=words) as err:
+        read_intrinsics(camera_info(0, k))
+    assert '\n' not in str(err.value)
+    with pytest.raises(InputError, match='9 numbers'):
+        read_intrinsics(type('Info', (), {'k': [1.0, 2.0]})())
+    with pytest.raises(InputError, match='CameraInfo'):
+        read_intrinsics(object())
+
+
+INFO_TOPIC = '/camera/camera_info'
+
+
+def _replay_counts(bag, out, settings):
+    stats_path = out.parent / f'{out.name}.json'
+    args = [str(bag), '--output', str(out), '--stats', str(stats_path)]
+    for item in settings:
+        args += ['--set', item]
+    assert main(args) == 0
+    return json.loads(stats_path.read_text())['counts']
+
+
+def test_camera_info_in_the_bag_stands_in_for_the_intrinsics_parameters(tmp_path):
+    # The scene's camera_info comes once, at the 6th frame: the poses of the five frames
+    # before it wait, and those frames get their cameras then, as later ones do on arrival.
+    stamps = [1_000_000_000 + t * 33_333_333 for t in range(20)]
+    bag = tmp_path / 'scene'
+    truth = write_scene_bag(bag, 20, 7, POSE_TOPIC,
+                            extra=[(INFO_TOPIC, stamps[5] + 500, camera_info(stamps[5],
+                                                                            INTRINSICS))])
+    common = [f'pose_topic={POSE_TOPIC}', 'pose_tolerance_ms=1', 'budget_ms=0']
+    counts = _replay_counts(bag, tmp_path / 'info', [*common, f'camera_info_topic={INFO_TOPIC}'])
+    assert counts['camera_infos'] == 1 and counts['bad_camera_infos'] == 0
+    assert counts['frames_with_camera'] == 20
+    assert INFO_TOPIC in counts['copied']
+    assert misclassification(_final_labels(tmp_path / 'info'), truth) < 0.05
+    # Without the camera_info parameter the scene needs the intrinsics as parameters.
+    with pytest.raises(InputError, match='camera_info_topic, or camera_fx'):
+        NodeConfig(pose_topic=POSE_TOPIC)
+    assert NodeConfig(pose_topic=POSE_TOPIC, camera_info_topic=INFO_TOPIC).camera_fx == 0.0
+
+
+def test_a_camera_info_that_is_no_calibration_leaves_the_frames_without_cameras(tmp_path,
+                                                                                capsys):
+    stamps = [1_000_000_000 + t * 33_333_333 for t in range(12)]
+    bag = tmp_path / 'scene'
+    write_scene_bag(bag, 12, 7, POSE_TOPIC,
+                    extra=[(INFO_TOPIC, s + 500, camera_info(s, np.zeros((3, 3))))
+                           for s in stamps])
+    common = ['budget_ms=0']
+    counts = _replay_counts(bag, tmp_path / 'info', [*common, f'pose_topic={POSE_TOPIC}',
+                                                     f'camera_info_topic={INFO_TOPIC}'])
+    assert counts['camera_infos'] == 0 and counts['bad_camera_infos'] == 12
+    assert counts['poses'] == 12 and counts['frames_with_camera'] == 0
+    err = capsys.readouterr().err
+    assert 'uncalibrated' in err and f'no valid sensor_msgs/msg/CameraInfo on {INFO_TOPIC}' in err
+    # Segmented as without poses.
+    _replay_counts(bag, tmp_path / 'plain', common)
+    assert np.array_equal(_final_labels(tmp_path / 'info'), _final_labels(tmp_path / 'plain'))

@@ -8,12 +8,14 @@ import pytest
 from geometry_msgs.msg import Point, Pose, PoseStamped, PoseWithCovariance, Quaternion
 from nav_msgs.msg import Odometry
 from rclpy.parameter import Parameter
-from static_scene import FOCAL, pose_of, static_scene, write_scene_bag
+from rclpy.qos import qos_profile_sensor_data
+from sensor_msgs.msg import CameraInfo
+from static_scene import FOCAL, INTRINSICS, camera_info, pose_of, static_scene, write_scene_bag
 
 from pearl_ros.bagio import decode
-from pearl_ros.core.errors import InputError
+from pearl_ros.core.errors import BagError, InputError
 from pearl_ros.core.metrics import misclassification
-from pearl_ros.ros.play import Player, bag_messages, load_poses
+from pearl_ros.ros.play import CAMERA_INFO_CLASSES, Player, bag_messages, load_poses
 
 from ros_harness import RELIABLE, Ros, header, vins_cloud
 
@@ -29,22 +31,31 @@ def _pose(camera: np.ndarray) -> Pose:
                 orientation=Quaternion(x=q[0], y=q[1], z=q[2], w=q[3]))
 
 
-def _run(ros: Ros, pose_type: str | None) -> tuple[float, dict[str, str]]:
+def _run(ros: Ros, pose_type: str | None, info: bool = False) -> tuple[float, dict[str, str]]:
     """The scene through the node (poses on ``camera_pose`` after each frame's features, if
-    ``pose_type``); the final frame's misclassification and the node's last diagnostics."""
+    ``pose_type``; with ``info`` the intrinsics on ``camera_info`` with each frame, as a camera
+    driver publishes them, instead of parameters); the final frame's misclassification and the
+    node's last diagnostics."""
     tracks, truth, cameras = static_scene(frames=16, seed=8)
+    intrinsics = {'camera_info_topic': 'camera_info'} if info else INTRINSIC_PARAMETERS
     extra = {} if pose_type is None else {'pose_topic': 'camera_pose', 'pose_type': pose_type,
-                                          **INTRINSIC_PARAMETERS}
+                                          **intrinsics}
     node = ros.pearl(budget_ms=0.0, **extra)
     probe = ros.probe()
     kind = Odometry if pose_type == 'odometry' else PoseStamped
     poses = probe.node.create_publisher(kind, 'camera_pose', RELIABLE)
+    infos = probe.node.create_publisher(CameraInfo, 'camera_info', qos_profile_sensor_data)
     probe.wait_for(node)
     if pose_type is not None:
         assert ros.spin_until(lambda: poses.get_subscription_count() > 0)
+    if info:
+        assert ros.spin_until(lambda: infos.get_subscription_count() > 0)
     ids = np.arange(truth.size)
     for t in range(tracks.shape[0]):
         stamp = START_NS + t * STEP_NS
+        if info:
+            infos.publish(CameraInfo(header=header(stamp), width=640, height=480,
+                                     k=INTRINSICS.ravel().tolist()))
         labels_msg = probe.send(vins_cloud(stamp, ids, tracks[t]))
         if pose_type == 'odometry':
             poses.publish(Odometry(header=header(stamp), child_frame_id='cam0',
@@ -67,16 +78,42 @@ def test_poses_after_their_frames_let_the_node_find_the_static_world(ros: Ros, p
     assert int(values['frames given a camera pose']) >= 14
 
 
+def test_a_camera_info_topic_gives_the_node_its_intrinsics(ros: Ros):
+    error, values = _run(ros, 'odometry', info=True)
+    assert error < 0.05
+    assert int(values['camera_info taken']) >= 1 and values['camera_info refused'] == '0'
+    assert int(values['frames given a camera pose']) >= 14
+
+
+def test_a_camera_info_that_is_no_calibration_is_counted_and_warned_about(ros: Ros):
+    node = ros.pearl(pose_topic='camera_pose', camera_info_topic='camera_info')
+    probe = ros.probe()
+    infos = probe.node.create_publisher(CameraInfo, 'camera_info', qos_profile_sensor_data)
+    probe.wait_for(node)
+    assert ros.spin_until(lambda: infos.get_subscription_count() > 0)
+    infos.publish(CameraInfo(header=header(START_NS)))  # k all zero: uncalibrated
+    assert ros.spin_until(lambda: node._pending_info is not None)
+    probe.send(vins_cloud(START_NS, [0, 1, 2], [[1.0, 1.0], [5.0, 2.0], [3.0, 9.0]]))
+    assert ros.spin_until(lambda: node.stats.bad_camera_infos == 1)
+    assert node.stats.camera_infos == 0
+    assert ros.spin_until(lambda: probe.warnings('uncalibrated'))
+    for t in range(1, 10):
+        probe.send(vins_cloud(START_NS + t * STEP_NS, [0, 1, 2],
+                              [[1.0, 1.0], [5.0, 2.0], [3.0, 9.0]]))
+    values = probe.diagnostics_where(lambda v: v.get('messages processed') == '10')
+    assert 'no valid camera_info on camera_info' in values['_message']
+
+
 def test_without_a_pose_topic_there_is_no_pose_subscription(ros: Ros):
     node = ros.pearl()
     subscriptions = node.get_subscriber_names_and_types_by_node(node.get_name(), ros.ns)
     assert not any('Odometry' in ''.join(types) or 'PoseStamped' in ''.join(types)
-                   for _, types in subscriptions)
+                   or 'CameraInfo' in ''.join(types) for _, types in subscriptions)
     assert 'camera poses taken' not in {kv.key for kv in node.diagnostics().status[0].values}
 
 
 def test_pose_topic_needs_intrinsics_is_read_only_and_a_bad_pose_is_counted(ros: Ros):
-    with pytest.raises(InputError, match='camera_fx and camera_fy'):
+    with pytest.raises(InputError, match='camera_info_topic, or camera_fx and camera_fy'):
         ros.pearl(pose_topic='camera_pose')
     node = ros.pearl(pose_topic='camera_pose', **INTRINSIC_PARAMETERS)
     result = node.set_parameters([Parameter('pose_topic', value='other')])[0]
@@ -110,6 +147,30 @@ def test_pearl_play_plays_a_bags_poses_beside_its_features(ros: Ros, tmp_path):
     final = answers[-1]
     assert final is not None
     assert misclassification(final.labels[np.argsort(final.ids)], truth) < 0.05
+
+
+def test_pearl_play_plays_a_bags_camera_info_for_a_node_that_takes_it(ros: Ros, tmp_path):
+    topic, info_topic = f'{ros.ns}/camera_pose', f'{ros.ns}/camera_info'
+    stamps = [START_NS + t * STEP_NS for t in range(16)]
+    truth = write_scene_bag(tmp_path / 'scene', 16, 9, topic,
+                            extra=[(info_topic, s, camera_info(s, INTRINSICS)) for s in stamps])
+    node = ros.pearl(budget_ms=0.0, pose_topic=topic, camera_info_topic=info_topic)
+    info = load_poses(tmp_path / 'scene', info_topic, classes=CAMERA_INFO_CLASSES)
+    assert info.msg_class is CameraInfo and len(info.stamps) == 16
+    player = ros.add(Player(bag_messages(tmp_path / 'scene'), context=ros.context,
+                            namespace=ros.ns, poses=load_poses(tmp_path / 'scene', topic),
+                            camera_info=info))
+    assert player.wait_for_node(ros.executor, 10.0)
+    assert ros.spin_until(lambda: player.camera_info_publisher.get_subscription_count() > 0)
+    answers = player.play(ros.executor, timeout_s=10.0)
+    assert all(answer is not None for answer in answers)
+    assert player.camera_info_sent == 16 and node.stats.camera_infos >= 1
+    assert node.stats.frames_with_camera >= 14
+    final = answers[-1]
+    assert final is not None
+    assert misclassification(final.labels[np.argsort(final.ids)], truth) < 0.05
+    with pytest.raises(BagError, match='expected sensor_msgs/msg/CameraInfo'):
+        load_poses(tmp_path / 'scene', topic, classes=CAMERA_INFO_CLASSES)
 
 
 def test_poses_on_another_clock_are_reported_in_the_diagnostics(ros: Ros):
