@@ -489,6 +489,9 @@ def _add_latency_parser(commands: Any) -> None:
     latency.add_argument('--scene-seeds', type=int, nargs='+', default=[0], metavar='SEED',
                          help='seeds of the streams: one stream per seed, size and '
                          'window (default 0)')
+    latency.add_argument('--cameras', action='store_true',
+                         help="give the segmenter each frame's true camera, as a robot's "
+                         'odometry would (pose_topic; robot streams only)')
     latency.add_argument('--memory', action='store_true',
                          help='also measure the peak MiB the segmenter allocates (one more '
                          'unpaced run per stream, under tracemalloc)')
@@ -541,13 +544,16 @@ def _latency(args: argparse.Namespace) -> int:
         raise InputError(f'--rate must be > 0 Hz, got {args.rate:g}')
     tokens = args.features or (['500'] if args.profile else ['300', '500', '1000', '2000'])
     sizes = [latency.parse_size(token, args.rate) for token in tokens]
+    if args.cameras and args.stream != 'robot':
+        raise InputError('--cameras needs --stream robot (its cameras are known)')
     if min(args.windows) < 2 or args.frames <= max(args.windows):
         raise InputError('need windows >= 2 and frames > window')
     if args.profile:
         if len(sizes) > 1 or len(args.windows) > 1:
             raise InputError('--profile runs one size: give one --features and one --windows')
         print(bench_stream.profile_one(sizes[0][0], args.windows[0], args.frames, config,
-                                       online, args.scene_seeds[0], stream=args.stream))
+                                       online, args.scene_seeds[0], stream=args.stream,
+                                       cameras=args.cameras))
         return 0
     rows = []
     for features, rate in sizes:
@@ -557,10 +563,12 @@ def _latency(args: argparse.Namespace) -> int:
                                  f'scene {scene}   ')
                 rows += bench_stream.latency_rows(
                     features, window, args.frames, config, online, scene, rate_hz=rate,
-                    queue=args.queue, stream=args.stream, memory=args.memory)
+                    queue=args.queue, stream=args.stream, memory=args.memory,
+                    cameras=args.cameras)
     sys.stderr.write('\n')
     title = (f'Online PEaRL latency, {args.stream} streams of {args.frames} frames paced at '
-             f'their rate, queue {args.queue}, budget {online.budget_ms:g} ms')
+             f'their rate, queue {args.queue}, budget {online.budget_ms:g} ms'
+             + (', true cameras given' if args.cameras else ''))
     if overrides:
         title += ', ' + ', '.join(f'{k}={v}' for k, v in overrides.items())
     print(bench_stream.format_latency(rows, title))

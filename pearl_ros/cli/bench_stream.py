@@ -227,9 +227,10 @@ class LatencyRow:
 
 def latency_rows(features: int, window: int, frames: int, config: PearlConfig,
                  online: OnlineConfig, seed: int = 0, *, rate_hz: float = 30.0,
-                 queue: str = 'all', stream: str = 'robot', memory: bool = False
-                 ) -> list[LatencyRow]:
-    """The floor and segmenter rows of one stream, paced at ``rate_hz`` (:func:`paced`).
+                 queue: str = 'all', stream: str = 'robot', memory: bool = False,
+                 cameras: bool = False) -> list[LatencyRow]:
+    """The floor and segmenter rows of one stream, paced at ``rate_hz`` (:func:`paced`); with
+    ``cameras`` (robot streams) each frame comes with its true camera, as odometry gives it.
 
     With ``memory``, the segmenter runs once more, unpaced, under ``tracemalloc`` for its peak
     allocation (not while timing: its hooks slow allocation down).
@@ -238,6 +239,7 @@ def latency_rows(features: int, window: int, frames: int, config: PearlConfig,
     from pearl_ros.online.window import SlidingWindow
 
     frames_ = make_stream(stream, features, frames, seed)
+    known = stream_cameras(stream, len(frames_), seed) if cameras else [None] * len(frames_)
     arrivals = [i / rate_hz for i in range(len(frames_))]
     online = dataclasses.replace(online, window=window)
     slider = SlidingWindow(window)
@@ -254,12 +256,12 @@ def latency_rows(features: int, window: int, frames: int, config: PearlConfig,
     def segment(i: int) -> float:
         frame = frames_[i]
         begin = time.perf_counter()
-        labels[i] = segmenter.process(frame.stamp_ns, frame.ids, frame.uv).labels
+        labels[i] = segmenter.process(frame.stamp_ns, frame.ids, frame.uv, known[i]).labels
         return time.perf_counter() - begin
 
     peak = math.nan
     if memory:
-        peak = _peak_mib(OnlineSegmenter(config, online), frames_)
+        peak = _peak_mib(OnlineSegmenter(config, online), frames_, known)
     rows = []
     for kind, work in (('floor', floor), ('pearl', segment)):
         run = paced(arrivals, work, queue)
@@ -272,12 +274,22 @@ def latency_rows(features: int, window: int, frames: int, config: PearlConfig,
     return rows
 
 
-def _peak_mib(segmenter: Any, frames: Sequence[Any]) -> float:
+def stream_cameras(stream: str, frames: int, seed: int) -> list[Any]:
+    """The true camera (3, 4) of each frame of a ``'robot'`` stream of seed ``seed``."""
+    if stream != 'robot':
+        raise InputError(f'cameras are known for robot streams only, not {stream!r}')
+    from pearl_ros.datasets.robot import robot_scene
+
+    scene = robot_scene(frames, seed)
+    return [scene.camera(t) for t in range(frames)]
+
+
+def _peak_mib(segmenter: Any, frames: Sequence[Any], cameras: Sequence[Any]) -> float:
     """Peak MiB ``tracemalloc`` sees while ``segmenter`` processes ``frames``."""
     tracemalloc.start()
     try:
-        for frame in frames:
-            segmenter.process(frame.stamp_ns, frame.ids, frame.uv)
+        for frame, camera in zip(frames, cameras, strict=True):
+            segmenter.process(frame.stamp_ns, frame.ids, frame.uv, camera)
         return tracemalloc.get_traced_memory()[1] / 2**20
     finally:
         tracemalloc.stop()
@@ -316,9 +328,10 @@ def format_latency(rows: Sequence[LatencyRow], title: str) -> str:
 
 def profile_one(features: int, window: int, frames: int, config: PearlConfig,
                 online: OnlineConfig, seed: int = 0, *, stream: str = 'robot',
-                top: int = 25) -> str:
+                top: int = 25, cameras: bool = False) -> str:
     """pstats of the segmenter on one stream, restricted to the frames after the window fills:
-    the ``top`` functions by cumulative time, then by own time."""
+    the ``top`` functions by cumulative time, then by own time (``cameras``: as
+    :func:`latency_rows`)."""
     import cProfile
     import io
     import pstats
@@ -326,13 +339,14 @@ def profile_one(features: int, window: int, frames: int, config: PearlConfig,
     from pearl_ros.online.segmenter import OnlineSegmenter
 
     frames_ = make_stream(stream, features, frames, seed)
+    known = stream_cameras(stream, len(frames_), seed) if cameras else [None] * len(frames_)
     segmenter = OnlineSegmenter(config, dataclasses.replace(online, window=window))
-    for frame in frames_[:window]:
-        segmenter.process(frame.stamp_ns, frame.ids, frame.uv)
+    for frame, camera in zip(frames_[:window], known, strict=False):
+        segmenter.process(frame.stamp_ns, frame.ids, frame.uv, camera)
     profiler = cProfile.Profile()
     profiler.enable()
-    for frame in frames_[window:]:
-        segmenter.process(frame.stamp_ns, frame.ids, frame.uv)
+    for frame, camera in zip(frames_[window:], known[window:], strict=True):
+        segmenter.process(frame.stamp_ns, frame.ids, frame.uv, camera)
     profiler.disable()
     out = io.StringIO()
     stats = pstats.Stats(profiler, stream=out)

@@ -6,6 +6,7 @@ import csv
 import math
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from pearl_ros.cli.bench import (
@@ -358,3 +359,26 @@ def test_latency_bench_rejects_a_negative_scene_seed(capsys):
 def test_latency_bench_rejects_a_stream_no_longer_than_its_window(capsys):
     assert main(['latency', '--frames', '5', '--features', '100', '--windows', '5']) == 1
     assert 'frames > window' in capsys.readouterr().err
+
+
+def test_latency_bench_gives_each_frame_its_true_camera_with_cameras(capsys, monkeypatch):
+    from pearl_ros.datasets.robot import robot_scene
+    from pearl_ros.online.segmenter import OnlineSegmenter
+
+    given = []
+    process = OnlineSegmenter.process
+
+    def spy(self, stamp_ns, ids, uv, camera=None):
+        given.append(camera)
+        return process(self, stamp_ns, ids, uv, camera)
+
+    monkeypatch.setattr(OnlineSegmenter, 'process', spy)
+    assert main(['latency', '--frames', '8', '--features', '60', '--windows', '3',
+                 '--cameras', '--scene-seeds', '1', '--queue', 'all']) == 0
+    assert 'true cameras given' in capsys.readouterr().out
+    scene = robot_scene(8, 1)
+    assert len(given) == 8
+    assert all(np.array_equal(camera, scene.camera(t)) for t, camera in enumerate(given))
+    assert main(['latency', '--frames', '8', '--features', '60', '--windows', '3',
+                 '--cameras', '--stream', 'synthetic']) == 1
+    assert '--cameras needs --stream robot' in capsys.readouterr().err
