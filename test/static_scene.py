@@ -51,9 +51,10 @@ def pose_of(camera: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def camera_info(stamp_ns: int, k: np.ndarray, binning: tuple[int, int] = (0, 0),
-                offset: tuple[int, int] = (0, 0)):
+                offset: tuple[int, int] = (0, 0), d=(0.0, 0.0, 0.0, 0.0, 0.0)):
     """A rosbags ``sensor_msgs/msg/CameraInfo`` of camera matrix ``k`` (3, 3), plumb_bob with
-    no distortion, ``binning_x``, ``binning_y`` and a region of interest at ``offset``."""
+    coefficients ``d`` (none by default), ``binning_x``, ``binning_y`` and a region of
+    interest at ``offset``."""
     from pearl_ros.bagio.reader import TYPESTORE
     from pearl_ros.bagio.writer import stamped_header
 
@@ -63,20 +64,34 @@ def camera_info(stamp_ns: int, k: np.ndarray, binning: tuple[int, int] = (0, 0),
     projection = np.hstack([np.asarray(k, dtype=np.float64), np.zeros((3, 1))])
     return types['sensor_msgs/msg/CameraInfo'](
         header=stamped_header(stamp_ns, 'camera'), height=480, width=640,
-        distortion_model='plumb_bob', d=np.zeros(5), k=np.asarray(k, dtype=np.float64).ravel(),
+        distortion_model='plumb_bob', d=np.asarray(d, dtype=np.float64),
+        k=np.asarray(k, dtype=np.float64).ravel(),
         r=np.eye(3).ravel(), p=projection.ravel(), binning_x=binning[0], binning_y=binning[1],
         roi=roi)
 
 
+def radial(uv: np.ndarray, k1: float, k2: float) -> np.ndarray:
+    """Pixels of this scene's pinhole camera seen through a lens of radial distortion ``k1``,
+    ``k2`` (plumb_bob: ``x (1 + k1 r^2 + k2 r^4)`` in normalised coordinates)."""
+    xy = (uv - INTRINSICS[:2, 2]) / FOCAL
+    r2 = np.sum(np.square(xy), axis=-1, keepdims=True)
+    return xy * (1.0 + k1 * r2 + k2 * r2 * r2) * FOCAL + INTRINSICS[:2, 2]
+
+
 def write_scene_bag(path, frames: int, seed: int, pose_topic: str, static: int = 120,
-                    moving: int = 40, extra=None) -> np.ndarray:
+                    moving: int = 40, extra=None, lens=None) -> np.ndarray:
     """The scene as a bag with VINS-like camera poses on ``pose_topic`` beside its features
     (``/feature_tracker/feature``) and ground truth, each pose logged just after its frame,
-    and the ``extra`` messages of :func:`write_feature_bag`; returns the truth."""
+    and the ``extra`` messages of :func:`write_feature_bag`; returns the truth. With ``lens``
+    (k1, k2) the features are those a lens of that radial distortion shows, the points within
+    a normalised radius of 0.8 (where it does not fold the image) alone."""
     from pearl_ros.bagio.reader import FeatureFrame
     from pearl_ros.bagio.writer import write_feature_bag
 
     tracks, truth, cameras = static_scene(frames=frames, static=static, moving=moving, seed=seed)
+    if lens is not None:
+        inside = np.linalg.norm((tracks - INTRINSICS[:2, 2]) / FOCAL, axis=2).max(axis=0) < 0.8
+        tracks, truth = radial(tracks[:, inside], *lens), truth[inside]
     ids = np.arange(truth.size)
     stamps = [1_000_000_000 + t * 33_333_333 for t in range(frames)]
     write_feature_bag(path, [FeatureFrame(s, ids, tracks[t]) for t, s in enumerate(stamps)],

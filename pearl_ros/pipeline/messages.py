@@ -18,7 +18,7 @@ from __future__ import annotations
 
 from collections import Counter
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -29,6 +29,9 @@ from pearl_ros.online.segmenter import FrameResult, OnlineSegmenter
 from pearl_ros.pipeline import poses
 from pearl_ros.pipeline.poses import PoseBuffer
 from pearl_ros.pipeline.settings import Settings
+
+if TYPE_CHECKING:
+    from pearl_ros.tracking.tracker import CameraModel
 
 # Kinds of skipped message, each with words of the reasons that belong to it (first match).
 # A front end warns once per kind and counts the rest.
@@ -153,6 +156,13 @@ class Labelled:
         return not bool(self.segmented.all())
 
 
+def _same_lens(a: CameraModel | None, b: CameraModel | None) -> bool:
+    if a is None or b is None:
+        return a is b
+    return (a.model == b.model and np.array_equal(a.K, b.K)
+            and np.array_equal(a.distortion, b.distortion))
+
+
 class MessagePipeline:
     """Feature messages in recording order -> :class:`Labelled` or :class:`Skipped`.
 
@@ -176,6 +186,7 @@ class MessagePipeline:
         # applied when a frame takes its camera, so that poses may come before camera_info.
         self._poses = PoseBuffer(self._pose_tolerance_ns())
         self._camera_info: np.ndarray | None = None  # the latest valid camera_info's k
+        self._lens: CameraModel | None = None  # and its lens, where it distorts
         # Feature frames that got a camera pose, when segmented or later (a pose that came
         # after its frame): what tells a user that poses and frames meet (their clocks agree).
         self.frames_with_camera = 0
@@ -214,13 +225,21 @@ class MessagePipeline:
         """Take the intrinsics of a ``sensor_msgs/msg/CameraInfo`` (rclpy's or rosbags'), for
         ``camera_info_topic``: the frames from here on use them, and the first valid one also
         gives the frames of the window that came without a camera theirs, from the poses
-        already taken. The :class:`Skipped` of one that cannot be used (an uncalibrated
-        camera's zero ``k``, a non-finite one), else None."""
+        already taken. Where its lens distorts (``d``), the features' pixels are undistorted
+        before they are segmented (the published messages keep them as they came), and a lens
+        other than the last one's empties the window: its tracks were in the other pixels.
+        The :class:`Skipped` of one that cannot be used (an uncalibrated camera's zero ``k``, a
+        non-finite one, an unknown distortion model), else None."""
         try:
             k = poses.read_intrinsics(msg)
+            lens = poses.read_lens(msg, k)
         except InputError as err:
             return Skipped('camera_info', f'camera_info: {one_line(err, None)}', True)
         first = self._camera_info is None
+        if not _same_lens(lens, self._lens):
+            self._lens = lens
+            if self._settings.node.camera_info_topic and self._segmenter.frames_in_window:
+                self._segmenter.reset()
         self._camera_info = k
         if first and self._settings.node.camera_info_topic:
             for stamp, pose in self._poses.items():
@@ -312,9 +331,12 @@ class MessagePipeline:
         node = self._settings.node
         segmented = encode.subsample_mask(ids, node.max_features)
         stamp = decode.stamp_ns(msg.header)
+        pixels = uv[segmented]
+        if self._lens is not None and node.pose_topic and node.camera_info_topic:
+            pixels = self._lens.undistort(pixels)
         try:
             camera = self._camera(stamp) if node.pose_topic else None
-            result = self._segmenter.process(stamp, ids[segmented], uv[segmented], camera)
+            result = self._segmenter.process(stamp, ids[segmented], pixels, camera)
             self.frames_with_camera += camera is not None
         except InputError as err:  # a stamp equal to the last: the window is unchanged
             return Skipped.because(err, malformed=False)

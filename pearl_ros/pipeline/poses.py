@@ -16,11 +16,14 @@ from __future__ import annotations
 
 import bisect
 from collections import deque
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from pearl_ros.core.errors import InputError
+
+if TYPE_CHECKING:  # OpenCV is loaded only where a lens distorts
+    from pearl_ros.tracking.tracker import CameraModel
 
 CAMERA_INFO = 'sensor_msgs/msg/CameraInfo'
 POSE_TYPES = {'odometry': 'nav_msgs/msg/Odometry', 'pose_stamped': 'geometry_msgs/msg/PoseStamped'}
@@ -41,8 +44,7 @@ def read_intrinsics(msg: Any) -> np.ndarray:
     """The 3 x 3 camera matrix ``k`` of a ``sensor_msgs/msg/CameraInfo`` message: finite,
     ``fx``, ``fy`` > 0 and last row (0, 0, 1) (an uncalibrated camera's all-zero ``k`` is
     refused), for the pixels of the binned, cropped image it describes (``binning_x``,
-``binning_y``, ``roi``). Its lens distortion is not used: the features' pixels are taken as
-they are."""
+``binning_y``, ``roi``). Its lens distortion: :func:`read_lens`."""
     try:
         k = np.asarray(msg.k, dtype=np.float64)
     except AttributeError as err:
@@ -73,6 +75,21 @@ they are."""
         k[0] /= bin_x
         k[1] /= bin_y
     return k
+
+
+def read_lens(msg: Any, intrinsics: np.ndarray) -> CameraModel | None:
+    """The lens of a ``sensor_msgs/msg/CameraInfo`` (its ``distortion_model`` and ``d``) with
+    the camera matrix ``intrinsics`` of :func:`read_intrinsics`, or None where it has no
+    distortion (every coefficient 0, or none)."""
+    from pearl_ros.tracking.tracker import CameraModel
+
+    try:
+        lens = CameraModel.from_camera_info(msg)
+    except (AttributeError, TypeError, ValueError) as err:
+        raise InputError(f'camera_info distortion cannot be read: {err}') from err
+    if not lens.distorted:
+        return None
+    return CameraModel(intrinsics, lens.distortion, lens.model)
 
 
 def rotation_matrix(quaternion: np.ndarray) -> np.ndarray:

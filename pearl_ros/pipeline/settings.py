@@ -95,8 +95,10 @@ class NodeConfig:
     camera_info_topic: str = spec('', 'sensor_msgs/msg/CameraInfo topic of the camera whose '
                                   'features are segmented: with pose_topic, its k (for the '
                                   'binning and roi it gives) replaces camera_fx, camera_fy, '
-                                  'camera_cx, camera_cy, the latest valid one in use; frames '
-                                  'before the first get no camera; empty = the parameters')
+                                  'camera_cx, camera_cy, the latest valid one in use, and its '
+                                  'lens distortion (d) is undone on the features before they '
+                                  'are segmented; frames before the first get no camera; '
+                                  'empty = the parameters')
     camera_fx: float = spec(0.0, 'px, focal length along x of the camera whose features are '
                             'segmented (needed with pose_topic, unless camera_info_topic)',
                             low=0.0, high=1e9)

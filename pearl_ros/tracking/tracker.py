@@ -127,6 +127,18 @@ class CameraModel:
             coefficients = np.zeros(0)
         return cls(np.asarray(msg.k, dtype=np.float64).reshape(3, 3), coefficients, model)
 
+    @property
+    def distorted(self) -> bool:
+        """Whether the lens has any non-zero distortion coefficient."""
+        return bool(np.any(self.distortion))
+
+    def undistort(self, uv: np.ndarray) -> np.ndarray:
+        """Pixels ``(N, 2)`` of an ideal pinhole camera of the same ``K`` for pixels ``uv``
+        ``(N, 2)``: where each would be without the lens's distortion."""
+        xy = self.normalise(uv)
+        pixels: np.ndarray = xy @ self.K[:2, :2].T + self.K[:2, 2]
+        return pixels
+
     def normalise(self, uv: np.ndarray) -> np.ndarray:
         """Undistorted normalised coordinates ``(N, 2)`` of pixels ``uv`` ``(N, 2)``."""
         points = np.ascontiguousarray(uv, dtype=np.float64).reshape(-1, 1, 2)

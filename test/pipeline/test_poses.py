@@ -316,3 +316,85 @@ def test_a_camera_info_that_is_no_calibration_leaves_the_frames_without_cameras(
     # Segmented as without poses.
     _replay_counts(bag, tmp_path / 'plain', common)
     assert np.array_equal(_final_labels(tmp_path / 'info'), _final_labels(tmp_path / 'plain'))
+
+
+LENS = (-0.3, 0.08)  # k1, k2: a wide lens, up to 20 px at the edge of the image
+
+
+def test_a_lens_with_distortion_is_undone_before_the_features_are_segmented(tmp_path,
+                                                                             monkeypatch):
+    from static_scene import FOCAL, radial
+
+    from pearl_ros.online.segmenter import OnlineSegmenter
+    from pearl_ros.pipeline.poses import read_lens
+
+    # The lens model inverts the scene's own distortion formula.
+    ideal = np.random.default_rng(0).uniform([70, 50], [570, 430], (50, 2))
+    lens = read_lens(camera_info(0, INTRINSICS, d=(*LENS, 0, 0, 0)), INTRINSICS)
+    assert lens is not None
+    assert np.allclose(lens.undistort(radial(ideal, *LENS)), ideal, atol=1e-6)
+    assert read_lens(camera_info(0, INTRINSICS), INTRINSICS) is None
+
+    given = []
+    process = OnlineSegmenter.process
+
+    def spy(self, stamp_ns, ids, uv, camera=None):
+        given.append(np.array(uv))
+        return process(self, stamp_ns, ids, uv, camera)
+
+    monkeypatch.setattr(OnlineSegmenter, 'process', spy)
+    tracks, truth, _ = static_scene(frames=20, seed=7)
+    inside = np.linalg.norm((tracks - INTRINSICS[:2, 2]) / FOCAL, axis=2).max(axis=0) < 0.8
+    stamps = [1_000_000_000 + t * 33_333_333 for t in range(20)]
+
+    def replay_with(d, name):
+        given.clear()
+        bag = tmp_path / f'{name}_bag'
+        write_scene_bag(bag, 20, 7, POSE_TOPIC, lens=LENS,
+                        extra=[(INFO_TOPIC, s - 500, camera_info(s, INTRINSICS, d=d))
+                               for s in stamps])
+        counts = _replay_counts(bag, tmp_path / name, [
+            f'pose_topic={POSE_TOPIC}', 'pose_tolerance_ms=1', 'budget_ms=0',
+            f'camera_info_topic={INFO_TOPIC}'])
+        assert counts['camera_infos'] == 20 and counts['frames_with_camera'] == 20
+        return misclassification(_final_labels(tmp_path / name), truth[inside])
+
+    # Told the lens, the segmenter gets the pixels of the ideal pinhole camera (the bag's
+    # features stay as they came); told none, the pixels as recorded.
+    assert replay_with((*LENS, 0, 0, 0), 'lens') < 0.05
+    assert len(given) == 20
+    assert all(np.allclose(uv, tracks[t, inside], atol=1e-4) for t, uv in enumerate(given))
+    replay_with((0, 0, 0, 0, 0), 'pinhole')
+    recorded = radial(tracks[:, inside], *LENS).astype(np.float32)  # as the message holds them
+    assert all(np.allclose(uv, recorded[t], atol=1e-3) for t, uv in enumerate(given))
+    assert np.abs(recorded - tracks[:, inside]).max() > 20
+
+
+def test_a_new_lens_empties_the_window():
+    from pearl_ros.pipeline.messages import MessagePipeline
+    from pearl_ros.pipeline.settings import Settings, build
+
+    settings = build({'pose_topic': POSE_TOPIC, 'camera_info_topic': INFO_TOPIC}, Settings())
+    pipeline = MessagePipeline(settings)
+    tracks, _, _ = static_scene(frames=4, seed=7)
+    ids = np.arange(tracks.shape[1])
+    frames = [_cloud(1_000_000_000 + t * 33_333_333, ids, tracks[t]) for t in range(4)]
+    assert pipeline.add_camera_info(camera_info(0, INTRINSICS)) is None
+    for msg in frames[:2]:
+        pipeline.process(msg)
+    assert pipeline.frames_in_window == 2
+    assert pipeline.add_camera_info(camera_info(0, INTRINSICS)) is None  # the same: kept
+    assert pipeline.frames_in_window == 2
+    assert pipeline.add_camera_info(camera_info(0, INTRINSICS, d=(*LENS, 0, 0, 0))) is None
+    assert pipeline.frames_in_window == 0
+    pipeline.process(frames[2])
+    skip = pipeline.add_camera_info(camera_info(0, INTRINSICS, d=(0.1, 0.2, 0.3)))
+    assert skip is not None and 'plumb_bob' in skip.line and pipeline.frames_in_window == 1
+
+
+def _cloud(stamp, ids, uv):
+    """A VINS-Mono PointCloud (rosbags) of the features ``ids`` at pixels ``uv``."""
+    from pearl_ros.bagio.writer import stamped_header, vins_pointcloud
+
+    frame = FeatureFrame(stamp, ids, uv)
+    return vins_pointcloud(frame, uv, None, stamped_header(stamp, 'camera'))
