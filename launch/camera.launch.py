@@ -6,12 +6,16 @@ For ROS 2 installs with launch and launch_ros:
         camera_info:=/camera/camera_info
     ros2 launch pearl_ros camera.launch.py namespace:=front image:=/front/image_raw \
         camera_info:=/front/camera_info params_file:=/path/to/my_pearl.yaml
+    ros2 launch pearl_ros camera.launch.py image:=/camera/image_raw \
+        camera_info:=/camera/camera_info pose_topic:=/odometry/camera
 
 In ``namespace``, ``pearl_tracker`` reads ``image`` and ``camera_info`` (remapped to the
 launch arguments) and publishes ``features``; ``pearl_node`` segments ``features`` and, with
 ``image_topic`` set to the same image, publishes ``image_labels`` (the image with each feature
-coloured by its motion) besides ``motion_labels`` and ``static_features``. One camera per
-namespace: include this file once per camera for several.
+coloured by its motion) besides ``motion_labels`` and ``static_features``. With
+``pose_topic`` (the camera's odometry), ``pearl_node`` also takes the camera's poses, with the
+intrinsics and lens of ``camera_info``: the static world becomes a motion of known
+parameters. One camera per namespace: include this file once per camera for several.
 """
 
 import os
@@ -42,6 +46,10 @@ def generate_launch_description():
             description='pearl_node parameters file (defaults: config/pearl.yaml of this '
                         'package)'),
         DeclareLaunchArgument(
+            'pose_topic', default_value='',
+            description="the camera optical frame's pose in a fixed world frame "
+                        '(nav_msgs/Odometry; empty: none), with the intrinsics of camera_info'),
+        DeclareLaunchArgument(
             'max_features', default_value='300',
             description='features the tracker keeps per image'),
         Node(
@@ -62,7 +70,9 @@ def generate_launch_description():
             output='screen',
             # features: the tracker's output in the same namespace, no remapping needed
             parameters=[LaunchConfiguration('params_file'),
-                        {'image_topic': LaunchConfiguration('image')}],
+                        {'image_topic': LaunchConfiguration('image'),
+                         'pose_topic': LaunchConfiguration('pose_topic'),
+                         'camera_info_topic': LaunchConfiguration('camera_info')}],
             remappings=[],
         ),
     ])

@@ -319,7 +319,7 @@ def test_the_camera_launch_file_chains_the_tracker_and_the_node_on_one_image() -
     assert 'generate_launch_description' in functions
     arguments = {n.args[0].value for n in ast.walk(tree) if isinstance(n, ast.Call)
                  and getattr(n.func, 'id', '') == 'DeclareLaunchArgument'}
-    assert {'image', 'camera_info', 'namespace', 'params_file'} <= arguments
+    assert {'image', 'camera_info', 'namespace', 'params_file', 'pose_topic'} <= arguments
     nodes = {}
     for call in ast.walk(tree):
         if isinstance(call, ast.Call) and getattr(call.func, 'id', '') == 'Node':
@@ -345,7 +345,10 @@ def test_the_camera_launch_file_chains_the_tracker_and_the_node_on_one_image() -
     assert 'features' not in tracker and 'features' not in pearl
     # pearl_node draws on the camera's image: image_topic is the image launch argument
     parameters = ast.unparse(nodes['pearl_node']['parameters'])
-    assert "{'image_topic': LaunchConfiguration('image')}" in parameters
+    assert "'image_topic': LaunchConfiguration('image')" in parameters
+    # with pose_topic, the node's intrinsics come from the tracker's own camera_info
+    assert "'pose_topic': LaunchConfiguration('pose_topic')" in parameters
+    assert "'camera_info_topic': LaunchConfiguration('camera_info')" in parameters
     assert "LaunchConfiguration('params_file')" in parameters
     assert REPO.joinpath('setup.py').read_text().count("glob('launch/*.launch.py')") == 1
 
