@@ -12,7 +12,8 @@ For ROS 2 installs with launch and launch_ros:
 In ``namespace``, ``pearl_tracker`` reads ``image`` and ``camera_info`` (remapped to the
 launch arguments) and publishes ``features``; ``pearl_node`` segments ``features`` and, with
 ``image_topic`` set to the same image, publishes ``image_labels`` (the image with each feature
-coloured by its motion) besides ``motion_labels`` and ``static_features``. With
+coloured by its motion) besides ``motion_labels`` and ``static_features``; it takes the lens
+of ``camera_info`` (``camera_info_topic``) and segments the features undistorted. With
 ``pose_topic`` (the camera's odometry), ``pearl_node`` also takes the camera's poses, with the
 intrinsics and lens of ``camera_info``: the static world becomes a motion of known
 parameters. One camera per namespace: include this file once per camera for several.

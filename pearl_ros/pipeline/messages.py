@@ -223,11 +223,12 @@ class MessagePipeline:
 
     def add_camera_info(self, msg: Any) -> Skipped | None:
         """Take the intrinsics of a ``sensor_msgs/msg/CameraInfo`` (rclpy's or rosbags'), for
-        ``camera_info_topic``: the frames from here on use them, and the first valid one also
-        gives the frames of the window that came without a camera theirs, from the poses
-        already taken. Where its lens distorts (``d``), the features' pixels are undistorted
-        before they are segmented (the published messages keep them as they came), and a lens
-        other than the last one's empties the window: its tracks were in the other pixels.
+        ``camera_info_topic``: with ``pose_topic`` the frames from here on use them, and the
+        first valid one also gives the frames of the window that came without a camera
+        theirs, from the poses already taken. Where its lens distorts (``d``), the features'
+        pixels are undistorted before they are segmented (the published messages keep them as
+        they came), and a lens other than the last one's empties the window: its tracks were
+        in the other pixels.
         The :class:`Skipped` of one that cannot be used (an uncalibrated camera's zero ``k``, a
         non-finite one, an unknown distortion model), else None."""
         try:
@@ -235,13 +236,14 @@ class MessagePipeline:
             lens = poses.read_lens(msg, k)
         except InputError as err:
             return Skipped('camera_info', f'camera_info: {one_line(err, None)}', True)
+        node = self._settings.node
         first = self._camera_info is None
         if not _same_lens(lens, self._lens):
             self._lens = lens
-            if self._settings.node.camera_info_topic and self._segmenter.frames_in_window:
+            if node.camera_info_topic and self._segmenter.frames_in_window:
                 self._segmenter.reset()
         self._camera_info = k
-        if first and self._settings.node.camera_info_topic:
+        if first and node.camera_info_topic and node.pose_topic:
             for stamp, pose in self._poses.items():
                 self.frames_with_camera += self._segmenter.set_camera(
                     stamp, k @ pose, self._poses.tolerance_ns)
@@ -332,7 +334,7 @@ class MessagePipeline:
         segmented = encode.subsample_mask(ids, node.max_features)
         stamp = decode.stamp_ns(msg.header)
         pixels = uv[segmented]
-        if self._lens is not None and node.pose_topic and node.camera_info_topic:
+        if self._lens is not None and node.camera_info_topic:
             pixels = self._lens.undistort(pixels)
         try:
             camera = self._camera(stamp) if node.pose_topic else None

@@ -201,7 +201,7 @@ def replay(
     pipeline = MessagePipeline(settings.settings, MESSAGE_TYPES)
     copy_topics: tuple[str, ...] = (settings.truth_topic,) if settings.truth_topic else ()
     pose_topic = settings.settings.node.pose_topic
-    info_topic = settings.settings.node.camera_info_topic if pose_topic else ''
+    info_topic = settings.settings.node.camera_info_topic
     if pose_topic:  # read for the pipeline, and copied as the truth is
         copy_topics += (pose_topic,)
     if info_topic and info_topic not in copy_topics:
@@ -224,9 +224,10 @@ def replay(
                 out.add_topic(topic, msgtype)
             _run(stream, pipeline, settings, out, stats, warn, progress)
             stats.frames_with_camera = pipeline.frames_with_camera
-            if stats.poses and info_topic and not stats.camera_infos:
+            if info_topic and not stats.camera_infos:
+                without = 'the poses and the lens' if pose_topic else 'the lens'
                 warn(-1, Skipped('camera_info_missing', f'no valid {CAMERA_INFO} on '
-                                 f'{info_topic}: segmented without the poses', False))
+                                 f'{info_topic}: segmented without {without}', False))
             elif stats.poses and not stats.frames_with_camera:
                 warn(-1, Skipped('pose_unmatched', f'none of the {stats.poses} poses on '
                                  f'{pose_topic} is within pose_tolerance_ms of a feature '
@@ -250,7 +251,7 @@ def _run(stream: FeatureStream, pipeline: MessagePipeline, settings: ReplaySetti
     node = settings.settings.node
     for item in stream:
         if isinstance(item, CopiedMessage):
-            if node.pose_topic and item.topic in (node.pose_topic, node.camera_info_topic):
+            if item.topic in (node.pose_topic, node.camera_info_topic):
                 _take_recorded(item, pipeline, stats, warn)
             _copy(item, out, stats, warn)
             continue

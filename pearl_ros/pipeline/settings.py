@@ -93,12 +93,12 @@ class NodeConfig:
     pose_tolerance_ms: float = spec(10.0, 'ms, the most a pose\'s stamp may differ from its '
                                     "feature frame's", low=0.0, high=1e6)
     camera_info_topic: str = spec('', 'sensor_msgs/msg/CameraInfo topic of the camera whose '
-                                  'features are segmented: with pose_topic, its k (for the '
-                                  'binning and roi it gives) replaces camera_fx, camera_fy, '
-                                  'camera_cx, camera_cy, the latest valid one in use, and its '
+                                  'features are segmented, the latest valid one in use: its '
                                   'lens distortion (d) is undone on the features before they '
-                                  'are segmented; frames before the first get no camera; '
-                                  'empty = the parameters')
+                                  'are segmented, and with pose_topic its k (for the binning '
+                                  'and roi it gives) replaces camera_fx, camera_fy, camera_cx, '
+                                  'camera_cy (frames before the first get no camera); empty = '
+                                  'off (pixels as they come, the parameters\' intrinsics)')
     camera_fx: float = spec(0.0, 'px, focal length along x of the camera whose features are '
                             'segmented (needed with pose_topic, unless camera_info_topic)',
                             low=0.0, high=1e9)

@@ -28,10 +28,11 @@ Topics (names relative to the node's namespace unless absolute)
     (:class:`~pearl_ros.pipeline.poses.PoseBuffer`); the static world is then a motion of known
     parameters (:mod:`pearl_ros.core.models.ego`). Poses wait for the worker, which takes them
     before its next frame.
-``camera_info_topic`` (in, with ``pose_topic``, when the parameter names one)
+``camera_info_topic`` (in, when the parameter names one)
     ``sensor_msgs/msg/CameraInfo`` of the camera whose features are segmented (best effort, as
-    camera drivers publish it): the latest valid ``k`` (with its binning and region of
-    interest) gives the intrinsics.
+    camera drivers publish it), the latest valid one: its lens distortion is undone on the
+    features before they are segmented, and with ``pose_topic`` its ``k`` (with its binning
+    and region of interest) gives the intrinsics.
 
 Service ``~/reset`` (``std_srvs/srv/Trigger``) empties the window.
 
@@ -325,6 +326,12 @@ class PearlNode(Node):
         self._pending_info: Any = None  # the newest camera_info not yet taken
         if node.pose_topic:
             self._subscribe_poses(node)
+        if node.camera_info_topic:
+            self._info_sub = self._subscribe('camera_info_topic', CameraInfo,
+                                             node.camera_info_topic, self._on_camera_info,
+                                             input_qos('sensor_data', 1))
+            use = 'the lens and intrinsics' if node.pose_topic else 'the lens'
+            self.get_logger().info(f'taking {use} from {self._info_sub.topic_name}')
         self.add_pre_set_parameters_callback(_ints_as_floats)
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self._timer = self.create_timer(node.diagnostics_period, self._on_timer)
@@ -337,16 +344,22 @@ class PearlNode(Node):
             f'queue_policy {node.queue_policy})'
         )
 
-    def _subscribe_images(self, node: pipeline_settings.NodeConfig) -> None:
-        """The ``image_topic`` subscription and ``image_labels``; InputError for a bad name."""
+    def _subscribe(self, parameter: str, kind: Any, topic: str, callback: Any,
+                   qos: QoSProfile) -> Any:
+        """A subscription to the topic a ``parameter`` names; the node is destroyed and
+        InputError raised for a name that is not a valid topic name."""
         try:
-            self._image_sub = self.create_subscription(
-                Image, node.image_topic, self._on_image, input_qos(node.qos, node.qos_depth))
+            return self.create_subscription(kind, topic, callback, qos)
         except NameValidationException as err:
             self.destroy_node()
             reason = str(err).splitlines()[0].rstrip(':').split(': ', 1)[-1]
-            raise InputError(f'image_topic {node.image_topic!r} is not a valid topic name: '
+            raise InputError(f'{parameter} {topic!r} is not a valid topic name: '
                              f'{reason}') from err
+
+    def _subscribe_images(self, node: pipeline_settings.NodeConfig) -> None:
+        """The ``image_topic`` subscription and ``image_labels``; InputError for a bad name."""
+        self._image_sub = self._subscribe('image_topic', Image, node.image_topic, self._on_image,
+                                          input_qos(node.qos, node.qos_depth))
         output_qos = QoSProfile(depth=OUTPUT_DEPTH, reliability=ReliabilityPolicy.RELIABLE)
         self._image_pub = self.create_publisher(Image, 'image_labels', output_qos)
         self._overlay = Overlay()
@@ -357,31 +370,13 @@ class PearlNode(Node):
     def _subscribe_poses(self, node: pipeline_settings.NodeConfig) -> None:
         """The ``pose_topic`` subscription; InputError for a bad name."""
         kind = Odometry if node.pose_type == 'odometry' else PoseStamped
-        try:
-            # Reliable, as odometry is published (VINS, robot_localization): a best-effort
-            # subscriber takes both.
-            self._pose_sub = self.create_subscription(
-                kind, node.pose_topic, self._on_pose,
-                QoSProfile(depth=POSE_BACKLOG, reliability=ReliabilityPolicy.RELIABLE))
-        except NameValidationException as err:
-            self.destroy_node()
-            reason = str(err).splitlines()[0].rstrip(':').split(': ', 1)[-1]
-            raise InputError(f'pose_topic {node.pose_topic!r} is not a valid topic name: '
-                             f'{reason}') from err
+        # Reliable, as odometry is published (VINS, robot_localization): a best-effort
+        # subscriber takes both.
+        self._pose_sub = self._subscribe(
+            'pose_topic', kind, node.pose_topic, self._on_pose,
+            QoSProfile(depth=POSE_BACKLOG, reliability=ReliabilityPolicy.RELIABLE))
         self.get_logger().info(f'taking camera poses ({node.pose_type}) from '
                                f'{self._pose_sub.topic_name}')
-        if not node.camera_info_topic:
-            return
-        try:
-            self._info_sub = self.create_subscription(
-                CameraInfo, node.camera_info_topic, self._on_camera_info,
-                input_qos('sensor_data', 1))
-        except NameValidationException as err:
-            self.destroy_node()
-            reason = str(err).splitlines()[0].rstrip(':').split(': ', 1)[-1]
-            raise InputError(f'camera_info_topic {node.camera_info_topic!r} is not a valid '
-                             f'topic name: {reason}') from err
-        self.get_logger().info(f'taking the intrinsics from {self._info_sub.topic_name}')
 
     def _on_pose(self, msg: Any) -> None:
         self._pending_poses.append(msg)
@@ -390,13 +385,14 @@ class PearlNode(Node):
         self._pending_info = msg  # only the newest matters
 
     def _take_poses(self) -> None:
-        """Hand the poses that came since the last frame to the pipeline (under
-        ``_pipeline_lock``); count them, and warn about unreadable ones."""
+        """Hand the newest camera_info and the poses that came since the last frame to the
+        pipeline (under ``_pipeline_lock``); count them, and warn about unreadable ones."""
         info, self._pending_info = self._pending_info, None
         if info is not None:
             skip = self._pipeline.add_camera_info(info)
             if skip is not None:
-                self._warn('camera_info', f'{skip.line}: the intrinsics stay as they were')
+                self._warn('camera_info',
+                           f'{skip.line}: the lens and intrinsics stay as they were')
             with self._lock:
                 self.stats.camera_infos += skip is None
                 self.stats.bad_camera_infos += skip is not None
@@ -706,8 +702,7 @@ class PearlNode(Node):
                    if self.settings.node.pose_topic else {}),
                 **({'camera_info taken': stats.camera_infos,
                     'camera_info refused': stats.bad_camera_infos}
-                   if self.settings.node.pose_topic and self.settings.node.camera_info_topic
-                   else {}),
+                   if self.settings.node.camera_info_topic else {}),
                 **image_values,
             }
             stats.period_start, stats.period_received, stats.period_problems = now, 0, 0
@@ -733,10 +728,10 @@ class PearlNode(Node):
         if not stats.period_received:
             problems.append('no input')
         node = self.settings.node
-        if (node.pose_topic and node.camera_info_topic and stats.processed >= UNMATCHED_FRAMES
+        if (node.camera_info_topic and stats.processed >= UNMATCHED_FRAMES
                 and not stats.camera_infos):
-            problems.append(f'no valid camera_info on {node.camera_info_topic}: frames get no '
-                            'camera')
+            lost = 'frames get no camera' if node.pose_topic else 'features are not undistorted'
+            problems.append(f'no valid camera_info on {node.camera_info_topic}: {lost}')
         elif stats.poses and stats.processed >= UNMATCHED_FRAMES and not stats.frames_with_camera:
             problems.append('no camera pose within pose_tolerance_ms of any feature frame '
                             '(clocks that differ?)')

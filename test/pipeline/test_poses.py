@@ -398,3 +398,43 @@ def _cloud(stamp, ids, uv):
 
     frame = FeatureFrame(stamp, ids, uv)
     return vins_pointcloud(frame, uv, None, stamped_header(stamp, 'camera'))
+
+
+def test_camera_info_without_poses_undistorts_the_features_alone(tmp_path, monkeypatch,
+                                                                 capsys):
+    from static_scene import radial
+
+    from pearl_ros.online.segmenter import OnlineSegmenter
+
+    given = []
+    process = OnlineSegmenter.process
+
+    def spy(self, stamp_ns, ids, uv, camera=None):
+        given.append((np.array(uv), camera))
+        return process(self, stamp_ns, ids, uv, camera)
+
+    monkeypatch.setattr(OnlineSegmenter, 'process', spy)
+    tracks, _, _ = static_scene(frames=12, seed=7)
+    inside = np.linalg.norm((tracks - INTRINSICS[:2, 2]) / FOCAL, axis=2).max(axis=0) < 0.8
+    stamps = [1_000_000_000 + t * 33_333_333 for t in range(12)]
+    bag = tmp_path / 'bag'
+    write_scene_bag(bag, 12, 7, POSE_TOPIC, lens=LENS,
+                    extra=[(INFO_TOPIC, s - 500, camera_info(s, INTRINSICS, d=(*LENS, 0, 0, 0)))
+                           for s in stamps])
+    counts = _replay_counts(bag, tmp_path / 'out', ['budget_ms=0',
+                                                   f'camera_info_topic={INFO_TOPIC}'])
+    assert counts['camera_infos'] == 12 and counts['frames_with_camera'] == 0
+    assert counts['poses'] == 0 and INFO_TOPIC in counts['copied']
+    assert len(given) == 12 and all(camera is None for _, camera in given)
+    assert all(np.allclose(uv, tracks[t, inside], atol=1e-4) for t, (uv, _) in enumerate(given))
+    # With a camera_info that is no calibration, the replay says the lens is not used.
+    bad = tmp_path / 'bad'
+    write_scene_bag(bad, 12, 7, POSE_TOPIC, lens=LENS,
+                    extra=[(INFO_TOPIC, s - 500, camera_info(s, np.zeros((3, 3))))
+                           for s in stamps])
+    given.clear()
+    counts = _replay_counts(bad, tmp_path / 'bad_out', [f'camera_info_topic={INFO_TOPIC}'])
+    assert counts['bad_camera_infos'] == 12
+    assert 'segmented without the lens' in capsys.readouterr().err
+    recorded = radial(tracks[:, inside], *LENS).astype(np.float32)
+    assert all(np.allclose(uv, recorded[t], atol=1e-3) for t, (uv, _) in enumerate(given))

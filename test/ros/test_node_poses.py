@@ -104,6 +104,24 @@ def test_a_camera_info_that_is_no_calibration_is_counted_and_warned_about(ros: R
     assert 'no valid camera_info on camera_info' in values['_message']
 
 
+def test_camera_info_alone_gives_the_node_its_lens(ros: Ros):
+    node = ros.pearl(camera_info_topic='camera_info')
+    subscriptions = node.get_subscriber_names_and_types_by_node(node.get_name(), ros.ns)
+    assert any('CameraInfo' in ''.join(types) for _, types in subscriptions)
+    probe = ros.probe()
+    infos = probe.node.create_publisher(CameraInfo, 'camera_info', qos_profile_sensor_data)
+    probe.wait_for(node)
+    assert ros.spin_until(lambda: infos.get_subscription_count() > 0)
+    infos.publish(CameraInfo(header=header(START_NS), distortion_model='plumb_bob',
+                             d=[-0.3, 0.08, 0.0, 0.0, 0.0], k=INTRINSICS.ravel().tolist()))
+    assert ros.spin_until(lambda: node._pending_info is not None)
+    probe.send(vins_cloud(START_NS, [0, 1, 2], [[1.0, 1.0], [5.0, 2.0], [3.0, 9.0]]))
+    assert ros.spin_until(lambda: node.stats.camera_infos == 1)
+    assert node._pipeline._lens is not None and node.stats.frames_with_camera == 0
+    values = {kv.key: kv.value for kv in node.diagnostics().status[0].values}
+    assert values['camera_info taken'] == '1' and 'camera poses taken' not in values
+
+
 def test_without_a_pose_topic_there_is_no_pose_subscription(ros: Ros):
     node = ros.pearl()
     subscriptions = node.get_subscriber_names_and_types_by_node(node.get_name(), ros.ns)
