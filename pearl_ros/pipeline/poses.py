@@ -1,8 +1,9 @@
 """Camera poses from a robot's odometry, as the segmenter takes them: projection matrices.
 
 A robot that knows where its camera is (visual-inertial odometry such as VINS' ``camera_pose``,
-wheel odometry composed with the camera's mounting) publishes it as ``nav_msgs/msg/Odometry``
-or ``geometry_msgs/msg/PoseStamped``: the pose of the camera's optical frame (z forward, x
+wheel odometry composed with the camera's mounting, a localiser) publishes it as
+``nav_msgs/msg/Odometry``, ``geometry_msgs/msg/PoseStamped`` or ``PoseWithCovarianceStamped``:
+the pose of the camera's optical frame (z forward, x
 right, y down, REP 103's ``_optical`` frames) in a fixed world frame. With the camera's
 intrinsics (pixels from the optical frame: parameters, or ``sensor_msgs/msg/CameraInfo``'s
 ``k``), each pose is one projection matrix ``K [R^T | -R^T c]``, where ``R`` and ``c`` are the
@@ -26,7 +27,8 @@ if TYPE_CHECKING:  # OpenCV is loaded only where a lens distorts
     from pearl_ros.tracking.tracker import CameraModel
 
 CAMERA_INFO = 'sensor_msgs/msg/CameraInfo'
-POSE_TYPES = {'odometry': 'nav_msgs/msg/Odometry', 'pose_stamped': 'geometry_msgs/msg/PoseStamped'}
+POSE_TYPES = {'odometry': 'nav_msgs/msg/Odometry', 'pose_stamped': 'geometry_msgs/msg/PoseStamped',
+              'pose_with_covariance_stamped': 'geometry_msgs/msg/PoseWithCovarianceStamped'}
 # Poses kept for frames to find theirs: a second of 200 Hz odometry.
 POSE_CAPACITY = 200
 
@@ -150,11 +152,13 @@ def mounted(position: np.ndarray, orientation: np.ndarray, mount_position: np.nd
 
 def read_pose(msg: Any, pose_type: str) -> tuple[np.ndarray, np.ndarray]:
     """The position (3,) and orientation quaternion (x, y, z, w) of an ``Odometry``
-    (``pose_type`` 'odometry') or ``PoseStamped`` ('pose_stamped') message."""
+    (``pose_type`` 'odometry'), ``PoseStamped`` ('pose_stamped') or
+    ``PoseWithCovarianceStamped`` ('pose_with_covariance_stamped') message; the covariance is
+    not used."""
     if pose_type not in POSE_TYPES:
         raise InputError(f'pose_type must be one of {sorted(POSE_TYPES)}, got {pose_type!r}')
     try:
-        pose = msg.pose.pose if pose_type == 'odometry' else msg.pose
+        pose = msg.pose if pose_type == 'pose_stamped' else msg.pose.pose
         p, q = pose.position, pose.orientation
         return (np.array([p.x, p.y, p.z], dtype=np.float64),
                 np.array([q.x, q.y, q.z, q.w], dtype=np.float64))

@@ -32,7 +32,7 @@ NODE_FQN = '/' + NODE_NAME  # the node's fully qualified name when nothing remap
 MSG_TYPES = ('PointCloud', 'PointCloud2')
 QOS_CHOICES = ('sensor_data', 'reliable')
 QUEUE_POLICIES = ('newest', 'all')
-POSE_CHOICES = ('odometry', 'pose_stamped')
+POSE_CHOICES = ('odometry', 'pose_stamped', 'pose_with_covariance_stamped')
 _INT64 = 2**63 - 1
 
 # Parameters that rclpy declares on every node itself: a node's parameter file may set them.
@@ -88,8 +88,10 @@ class NodeConfig:
                            'camera_cy), the static world becomes a motion '
                            'of known parameters; empty = off')
     pose_type: str = spec('odometry', 'message type on pose_topic: odometry '
-                          '(nav_msgs/msg/Odometry) or pose_stamped '
-                          '(geometry_msgs/msg/PoseStamped)', choices=POSE_CHOICES)
+                          '(nav_msgs/msg/Odometry), pose_stamped '
+                          '(geometry_msgs/msg/PoseStamped) or pose_with_covariance_stamped '
+                          '(geometry_msgs/msg/PoseWithCovarianceStamped; the covariance is not '
+                          'used)', choices=POSE_CHOICES)
     pose_tolerance_ms: float = spec(10.0, 'ms, the most a pose\'s stamp may differ from its '
                                     "feature frame's", low=0.0, high=1e6)
     camera_info_topic: str = spec('', 'sensor_msgs/msg/CameraInfo topic of the camera whose '

@@ -20,7 +20,8 @@ Topics (names relative to the node's namespace unless absolute)
     ``diagnostic_msgs/msg/DiagnosticArray`` every ``diagnostics_period`` s.
 ``pose_topic`` (in, when the parameter names one)
     The camera's pose in a fixed world frame (its optical frame: z forward, x right, y down),
-    ``nav_msgs/msg/Odometry`` or ``geometry_msgs/msg/PoseStamped`` (parameter ``pose_type``),
+    ``nav_msgs/msg/Odometry``, ``geometry_msgs/msg/PoseStamped`` or
+    ``geometry_msgs/msg/PoseWithCovarianceStamped`` (parameter ``pose_type``),
     such as VINS' ``camera_pose``; with the intrinsics of the features' pixels, from
     ``camera_info_topic`` or the parameters ``camera_fx``, ``camera_fy``, ``camera_cx``,
     ``camera_cy``. Each pose goes to the feature frame
@@ -79,7 +80,7 @@ from typing import Any
 
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray
-from geometry_msgs.msg import PoseStamped
+from geometry_msgs.msg import PoseStamped, PoseWithCovarianceStamped
 from nav_msgs.msg import Odometry
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.event_handler import SubscriptionEventCallbacks
@@ -369,7 +370,8 @@ class PearlNode(Node):
 
     def _subscribe_poses(self, node: pipeline_settings.NodeConfig) -> None:
         """The ``pose_topic`` subscription; InputError for a bad name."""
-        kind = Odometry if node.pose_type == 'odometry' else PoseStamped
+        kind = {'odometry': Odometry, 'pose_stamped': PoseStamped,
+                'pose_with_covariance_stamped': PoseWithCovarianceStamped}[node.pose_type]
         # Reliable, as odometry is published (VINS, robot_localization): a best-effort
         # subscriber takes both.
         self._pose_sub = self._subscribe(

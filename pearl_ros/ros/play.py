@@ -31,7 +31,7 @@ from typing import Any
 
 import numpy as np
 import rclpy
-from geometry_msgs.msg import PoseStamped
+from geometry_msgs.msg import PoseStamped, PoseWithCovarianceStamped
 from nav_msgs.msg import Odometry
 from rclpy.executors import Executor, ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
@@ -100,7 +100,8 @@ class BagPoses:
     raw: list[bytes]
 
 
-POSE_CLASSES = {'nav_msgs/msg/Odometry': Odometry, 'geometry_msgs/msg/PoseStamped': PoseStamped}
+POSE_CLASSES = {'nav_msgs/msg/Odometry': Odometry, 'geometry_msgs/msg/PoseStamped': PoseStamped,
+                'geometry_msgs/msg/PoseWithCovarianceStamped': PoseWithCovarianceStamped}
 CAMERA_INFO_CLASSES = {CAMERA_INFO: CameraInfo}
 
 
@@ -355,8 +356,9 @@ def build_parser() -> argparse.ArgumentParser:
                         help='topic to publish on (what pearl_node subscribes)')
     parser.add_argument('--labels', default='/motion_labels', help="pearl_node's labels topic")
     parser.add_argument('--poses', default='', metavar='TOPIC',
-                        help="the bag's camera pose topic (nav_msgs/msg/Odometry or "
-                        'geometry_msgs/msg/PoseStamped), published on the same name before '
+                        help="the bag's camera pose topic (nav_msgs/msg/Odometry, "
+                        'geometry_msgs/msg/PoseStamped or PoseWithCovarianceStamped), published '
+                        'on the same name before '
                         "each frame, for a pearl_node with pose_topic; empty = none")
     parser.add_argument('--camera-info', default='', metavar='TOPIC',
                         help="the bag's sensor_msgs/msg/CameraInfo topic, published on the same "

@@ -68,6 +68,8 @@ def test_camera_matrix_projects_as_a_pinhole_in_the_optical_frame():
     (lambda: camera_matrix([0.0, np.inf, 0.0], [0, 0, 0, 1], np.eye(3)), 'position'),
     (lambda: intrinsics_matrix(0.0, 500.0, 320.0, 240.0), 'fx, fy > 0'),
     (lambda: read_pose(object(), 'odometry'), 'not a nav_msgs/msg/Odometry'),
+    (lambda: read_pose(object(), 'pose_with_covariance_stamped'),
+     'not a geometry_msgs/msg/PoseWithCovarianceStamped'),
     (lambda: read_pose(object(), 'twist'), 'pose_type'),
 ])
 def test_bad_poses_are_refused_in_one_line(call, message):

@@ -5,7 +5,14 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from geometry_msgs.msg import Point, Pose, PoseStamped, PoseWithCovariance, Quaternion
+from geometry_msgs.msg import (
+    Point,
+    Pose,
+    PoseStamped,
+    PoseWithCovariance,
+    PoseWithCovarianceStamped,
+    Quaternion,
+)
 from nav_msgs.msg import Odometry
 from rclpy.parameter import Parameter
 from rclpy.qos import qos_profile_sensor_data
@@ -42,7 +49,8 @@ def _run(ros: Ros, pose_type: str | None, info: bool = False) -> tuple[float, di
                                           **intrinsics}
     node = ros.pearl(budget_ms=0.0, **extra)
     probe = ros.probe()
-    kind = Odometry if pose_type == 'odometry' else PoseStamped
+    kind = {'odometry': Odometry, 'pose_stamped': PoseStamped,
+            'pose_with_covariance_stamped': PoseWithCovarianceStamped}.get(pose_type, Odometry)
     poses = probe.node.create_publisher(kind, 'camera_pose', RELIABLE)
     infos = probe.node.create_publisher(CameraInfo, 'camera_info', qos_profile_sensor_data)
     probe.wait_for(node)
@@ -62,6 +70,9 @@ def _run(ros: Ros, pose_type: str | None, info: bool = False) -> tuple[float, di
                                    pose=PoseWithCovariance(pose=_pose(cameras[t]))))
         elif pose_type == 'pose_stamped':
             poses.publish(PoseStamped(header=header(stamp), pose=_pose(cameras[t])))
+        elif pose_type == 'pose_with_covariance_stamped':
+            poses.publish(PoseWithCovarianceStamped(
+                header=header(stamp), pose=PoseWithCovariance(pose=_pose(cameras[t]))))
     assert labels_msg is not None
     columns = decode.decode_fields(labels_msg, ('id', 'label'))
     labels = columns['label'][np.argsort(columns['id'])]
@@ -69,7 +80,8 @@ def _run(ros: Ros, pose_type: str | None, info: bool = False) -> tuple[float, di
     return misclassification(labels, truth), values
 
 
-@pytest.mark.parametrize('pose_type', ['odometry', 'pose_stamped'])
+@pytest.mark.parametrize('pose_type', ['odometry', 'pose_stamped',
+                                       'pose_with_covariance_stamped'])
 def test_poses_after_their_frames_let_the_node_find_the_static_world(ros: Ros, pose_type):
     error, values = _run(ros, pose_type)
     assert error < 0.05
