@@ -730,10 +730,12 @@ class PearlNode(Node):
         if not stats.period_received:
             problems.append('no input')
         node = self.settings.node
-        if (node.camera_info_topic and stats.processed >= UNMATCHED_FRAMES
+        # Without poses a camera_info only refines the pixels (the camera launch file names
+        # one whether the camera publishes it or not): its absence is counted, not warned of.
+        if (node.pose_topic and node.camera_info_topic and stats.processed >= UNMATCHED_FRAMES
                 and not stats.camera_infos):
-            lost = 'frames get no camera' if node.pose_topic else 'features are not undistorted'
-            problems.append(f'no valid camera_info on {node.camera_info_topic}: {lost}')
+            problems.append(f'no valid camera_info on {node.camera_info_topic}: frames get no '
+                            'camera')
         elif stats.poses and stats.processed >= UNMATCHED_FRAMES and not stats.frames_with_camera:
             problems.append('no camera pose within pose_tolerance_ms of any feature frame '
                             '(clocks that differ?)')
