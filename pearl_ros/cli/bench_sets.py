@@ -64,6 +64,12 @@ def add_commands(commands: Any) -> None:
                      help='also read each final window with the true camera poses: which '
                      'points a static point explains, and how far each group lies from the '
                      "static world's 3-D and 4-D affine subspaces")
+    syn.add_argument('--lens', type=float, default=0.0, metavar='K1',
+                     help='see the streams through a lens of radial distortion K1 (plumb_bob, '
+                     'e.g. -0.2: barrel, 50 px at the corners); default 0: none')
+    syn.add_argument('--undistort', action='store_true',
+                     help="with --lens, undistort the pixels before segmenting, as "
+                     'camera_info_topic does')
     syn.add_argument('--cameras', action='store_true',
                      help="give the segmenter each frame's true camera (as a robot's odometry "
                      'would): the static world becomes a motion of known parameters')
@@ -155,10 +161,16 @@ def synthetic(args: argparse.Namespace) -> int:
     if min(args.scenes) < 0:
         raise InputError(f'--scenes must be >= 0, got {min(args.scenes)}')
     overrides, config, online = _configs(args)
+    if not -1.0 < args.lens < 1.0:
+        raise InputError(f'--lens must be in (-1, 1), got {args.lens:g}')
+    if args.undistort and not args.lens:
+        raise InputError('--undistort needs --lens')
     mode = 'cameras' if args.cameras else 'stream'
-    tasks = [Task('robot', str(s), mode, config, online, args.seed) for s in args.scenes]
+    tasks = [Task('robot', str(s), mode, config, online, args.seed, lens=args.lens,
+                  undistort=args.undistort) for s in args.scenes]
     title = 'Online PEaRL on robot-like synthetic streams' + (
-        ', true cameras given' if args.cameras else '')
+        ', true cameras given' if args.cameras else '') + (
+        f', lens k1 {args.lens:g}' + (' undone' if args.undistort else '') if args.lens else '')
     _report(_run(run_task, tasks, args.jobs), _title(title, overrides, online),
             args.items)
     if args.oracle:

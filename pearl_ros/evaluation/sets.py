@@ -69,6 +69,8 @@ class Task:
     online: OnlineConfig
     seed: int = 0
     outliers: float = 0.0
+    lens: float = 0.0  # robot streams: radial distortion k1 of the camera's lens (0: none)
+    undistort: bool = False  # and whether the segmenter gets the pixels undistorted
 
 
 def score(dataset: str, name: str, pred: np.ndarray, truth: np.ndarray, seconds: float,
@@ -131,6 +133,24 @@ def _stream(frames: list[tuple[np.ndarray, np.ndarray, np.ndarray]], config: Pea
             100.0 * float(np.mean(half)))
 
 
+def _through_lens(frames: list[tuple[np.ndarray, np.ndarray, np.ndarray]], k1: float,
+                  undistort: bool) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    """Robot-stream frames as a lens of radial distortion ``k1`` (plumb_bob) shows them, or,
+    with ``undistort``, those pixels undistorted again as ``camera_info_topic`` does
+    (:meth:`CameraModel.undistort`)."""
+    from pearl_ros.datasets.robot import INTRINSICS
+    from pearl_ros.tracking.tracker import CameraModel
+
+    lens = CameraModel(INTRINSICS, np.array([k1, 0.0, 0.0, 0.0, 0.0]), 'plumb_bob')
+    out = []
+    for ids, uv, truth in frames:
+        xy = (uv - INTRINSICS[:2, 2]) / INTRINSICS[0, 0]
+        bent = xy * (1.0 + k1 * np.sum(np.square(xy), axis=1, keepdims=True))
+        seen = bent * INTRINSICS[0, 0] + INTRINSICS[:2, 2]
+        out.append((ids, lens.undistort(seen) if undistort else seen, truth))
+    return out
+
+
 def _adelaide(task: Task) -> Score:
     """An AdelaideRMF pair, one fundamental-matrix fit; mismatches are the outlier group."""
     import dataclasses
@@ -190,6 +210,8 @@ def _robot(task: Task) -> Score:
 
     seed = int(task.source)
     frames = [(f.ids, f.uv, f.truth) for f in robot_stream(seed=seed)]
+    if task.lens:
+        frames = _through_lens(frames, task.lens, task.undistort)
     online = dataclasses.replace(task.online, seed=task.seed)
     cameras = None
     if task.mode == 'cameras':

@@ -197,3 +197,20 @@ def test_every_suite_item_takes_the_seed_given(tmp_path: Path) -> None:
     for kind, task in items:
         seed = task.online.seed if kind == 'stream' else task.seed
         assert seed == 7, (kind, task)
+
+
+def test_a_robot_stream_through_a_lens_and_undistorted_again_is_the_pinhole_stream(capsys):
+    from pearl_ros.datasets.robot import INTRINSICS, robot_stream
+    from pearl_ros.evaluation.sets import _through_lens
+
+    frames = [(f.ids, f.uv, f.truth) for f in robot_stream(80, 5, seed=0)]
+    bent = _through_lens(frames, -0.2, False)
+    back = _through_lens(frames, -0.2, True)
+    for (_, uv, _), (_, seen, _), (_, undone, _) in zip(frames, bent, back, strict=True):
+        # Barrel distortion: every point moves towards the centre, by r^3 k1 f.
+        r = np.linalg.norm((uv - INTRINSICS[:2, 2]) / INTRINSICS[0, 0], axis=1)
+        moved = np.linalg.norm(seen - uv, axis=1)
+        assert np.allclose(moved, 0.2 * r**3 * INTRINSICS[0, 0])
+        assert np.allclose(undone, uv, atol=1e-6)
+    assert main(['synthetic', '--scenes', '0', '--undistort']) == 1
+    assert '--undistort needs --lens' in capsys.readouterr().err
