@@ -80,8 +80,6 @@ from typing import Any
 
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray
-from geometry_msgs.msg import PoseStamped, PoseWithCovarianceStamped
-from nav_msgs.msg import Odometry
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.event_handler import SubscriptionEventCallbacks
 from rclpy.exceptions import NameValidationException
@@ -96,6 +94,7 @@ from pearl_ros.core.errors import InputError, one_line
 from pearl_ros.online.config import unknown_parameter
 from pearl_ros.pipeline import settings as pipeline_settings
 from pearl_ros.pipeline.messages import Labelled, MessagePipeline, Skipped
+from pearl_ros.pipeline.poses import POSE_TYPES
 from pearl_ros.ros import convert, params, runner
 from pearl_ros.tracking import image as image_io
 from pearl_ros.tracking.draw import Overlay, to_bgr
@@ -370,8 +369,7 @@ class PearlNode(Node):
 
     def _subscribe_poses(self, node: pipeline_settings.NodeConfig) -> None:
         """The ``pose_topic`` subscription; InputError for a bad name."""
-        kind = {'odometry': Odometry, 'pose_stamped': PoseStamped,
-                'pose_with_covariance_stamped': PoseWithCovarianceStamped}[node.pose_type]
+        kind = convert.POSE_CLASSES[POSE_TYPES[node.pose_type]]
         # Reliable, as odometry is published (VINS, robot_localization): a best-effort
         # subscriber takes both.
         self._pose_sub = self._subscribe(

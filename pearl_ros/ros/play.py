@@ -31,19 +31,16 @@ from typing import Any
 
 import numpy as np
 import rclpy
-from geometry_msgs.msg import PoseStamped, PoseWithCovarianceStamped
-from nav_msgs.msg import Odometry
 from rclpy.executors import Executor, ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from rclpy.serialization import deserialize_message
-from sensor_msgs.msg import CameraInfo, PointCloud2
+from sensor_msgs.msg import PointCloud2
 
 from pearl_ros import scoring
 from pearl_ros.bagio import cdr, decode, reader
 from pearl_ros.core.errors import BagError, PearlError, UsageParser, one_line
 from pearl_ros.pipeline.messages import MessagePipeline, Skipped, SkipWarnings
-from pearl_ros.pipeline.poses import CAMERA_INFO
 from pearl_ros.ros import convert
 
 FEATURE_TOPIC = '/feature_tracker/feature'
@@ -100,23 +97,18 @@ class BagPoses:
     raw: list[bytes]
 
 
-POSE_CLASSES = {'nav_msgs/msg/Odometry': Odometry, 'geometry_msgs/msg/PoseStamped': PoseStamped,
-                'geometry_msgs/msg/PoseWithCovarianceStamped': PoseWithCovarianceStamped}
-CAMERA_INFO_CLASSES = {CAMERA_INFO: CameraInfo}
-
-
 def load_poses(path: str | Path, topic: str, feature_topic: str = FEATURE_TOPIC,
                classes: dict[str, Any] | None = None) -> BagPoses:
     """The messages of the pose ``topic`` of a bag (``nav_msgs/msg/Odometry`` or
     ``geometry_msgs/msg/PoseStamped``; or those of ``classes``, type name -> rclpy class, such
-    as :data:`CAMERA_INFO_CLASSES`), as ROS 2 CDR with their stamps.
+    as :data:`~pearl_ros.ros.convert.CAMERA_INFO_CLASSES`), as ROS 2 CDR with their stamps.
 
     Raises
     ------
     BagError
         No such topic, or another type on it; a message that cannot be read.
     """
-    classes = classes or POSE_CLASSES
+    classes = classes or convert.POSE_CLASSES
     kinds = reader.topics(path)
     if topic not in kinds:
         raise BagError(f'{path}: no topic {topic!r}; topics: {", ".join(kinds) or "none"}')
@@ -226,6 +218,9 @@ class Player(Node):
     messages : sequence of PointCloud or PointCloud2 (rclpy), in stamp order
     features_topic, labels_topic : str
         Where the node listens and answers.
+    poses, camera_info : BagPoses, optional
+        The bag's camera poses and camera_info, each message published (:class:`Beside`,
+        the attributes ``poses`` and ``camera_info``) before the first frame not earlier.
     """
 
     def __init__(self, messages: Sequence[Any], *, features_topic: str = 'features',
@@ -238,19 +233,8 @@ class Player(Node):
         self.messages = list(messages)
         qos = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
         self.publisher = self.create_publisher(type(self.messages[0]), features_topic, qos)
-        self.poses = poses
-        self.poses_sent = 0
-        if poses is not None:
-            pose_qos = QoSProfile(depth=len(poses.raw) + 1,
-                                  reliability=ReliabilityPolicy.RELIABLE)
-            self.pose_publisher = self.create_publisher(poses.msg_class, poses.topic, pose_qos)
-        self.camera_info = camera_info
-        self.camera_info_sent = 0
-        if camera_info is not None:
-            info_qos = QoSProfile(depth=len(camera_info.raw) + 1,
-                                  reliability=ReliabilityPolicy.RELIABLE)
-            self.camera_info_publisher = self.create_publisher(
-                camera_info.msg_class, camera_info.topic, info_qos)
+        self.poses = None if poses is None else Beside(self, poses)
+        self.camera_info = None if camera_info is None else Beside(self, camera_info)
         self.answers: dict[int, Answer] = {}
         self._sub = self.create_subscription(PointCloud2, labels_topic, self._on_labels, qos)
 
@@ -293,7 +277,9 @@ class Player(Node):
         for index, msg in enumerate(self.messages):
             sent = time.monotonic()
             stamp = decode.stamp_ns(msg.header)
-            self._send_poses(stamp)
+            for beside in (self.camera_info, self.poses):
+                if beside is not None:
+                    beside.send_until(stamp)
             self.publisher.publish(msg)
             answered = functools.partial(operator.contains, self.answers, stamp)  # stamp in
             spin_until(executor, answered, timeout_s)
@@ -306,21 +292,26 @@ class Player(Node):
         return out
 
 
-    def _send_poses(self, stamp_ns: int) -> None:
-        """Publish the poses not sent yet whose stamps are at most ``stamp_ns``: each frame's
-        pose reaches the node before the frame (a pose that comes after its frame serves
-        too, for the frames that follow)."""
-        info = self.camera_info
-        while (info is not None and self.camera_info_sent < len(info.raw)
-               and info.stamps[self.camera_info_sent] <= stamp_ns):
-            self.camera_info_publisher.publish(info.raw[self.camera_info_sent])
-            self.camera_info_sent += 1
-        poses = self.poses
-        if poses is None:
-            return
-        while self.poses_sent < len(poses.raw) and poses.stamps[self.poses_sent] <= stamp_ns:
-            self.pose_publisher.publish(poses.raw[self.poses_sent])
-            self.poses_sent += 1
+
+
+class Beside:
+    """A bag's messages of one topic (its camera poses, its camera_info) played beside its
+    features by a :class:`Player` ``node``, on the same topic name."""
+
+    def __init__(self, node: Node, messages: BagPoses) -> None:
+        self.messages = messages
+        qos = QoSProfile(depth=len(messages.raw) + 1, reliability=ReliabilityPolicy.RELIABLE)
+        self.publisher = node.create_publisher(messages.msg_class, messages.topic, qos)
+        self.sent = 0
+
+    def send_until(self, stamp_ns: int) -> None:
+        """Publish the messages not sent yet whose stamps are at most ``stamp_ns``: each
+        frame's pose reaches the node before the frame (a pose that comes after its frame
+        serves too, for the frames that follow)."""
+        messages = self.messages
+        while self.sent < len(messages.raw) and messages.stamps[self.sent] <= stamp_ns:
+            self.publisher.publish(messages.raw[self.sent])
+            self.sent += 1
 
 
 def spin_until(executor: Executor, done: Callable[[], bool], timeout_s: float) -> bool:
@@ -386,7 +377,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         bag = load_bag(args.bag, args.topic)
         truth = _truth(args.bag, args.truth_topic)
         poses = load_poses(args.bag, args.poses, args.topic) if args.poses else None
-        info = (load_poses(args.bag, args.camera_info, args.topic, CAMERA_INFO_CLASSES)
+        info = (load_poses(args.bag, args.camera_info, args.topic, convert.CAMERA_INFO_CLASSES)
                 if args.camera_info else None)
     except PearlError as err:
         print(f'error: {err}', file=sys.stderr)
@@ -445,10 +436,9 @@ def _play(player: Player, executor: Executor, bag: BagFeatures,
     answers = player.play(executor, rate_hz=args.rate, timeout_s=args.timeout, on_answer=show)
     missing = sum(answer is None for answer in answers)
     print(f'{len(answers) - missing}/{len(answers)} frames answered by pearl_node')
-    if player.poses is not None:
-        print(f'{player.poses_sent} camera poses played on {player.poses.topic}')
-    if player.camera_info is not None:
-        print(f'{player.camera_info_sent} camera_info played on {player.camera_info.topic}')
+    for beside, what in ((player.poses, 'camera poses'), (player.camera_info, 'camera_info')):
+        if beside is not None:
+            print(f'{beside.sent} {what} played on {beside.messages.topic}')
     if truth is not None:
         for line in scoring.summary_lines(scoring.summarise(rows)):
             print(line)

@@ -22,7 +22,8 @@ from static_scene import FOCAL, INTRINSICS, camera_info, pose_of, static_scene, 
 from pearl_ros.bagio import decode
 from pearl_ros.core.errors import BagError, InputError
 from pearl_ros.core.metrics import misclassification
-from pearl_ros.ros.play import CAMERA_INFO_CLASSES, Player, bag_messages, load_poses
+from pearl_ros.ros.convert import CAMERA_INFO_CLASSES
+from pearl_ros.ros.play import Player, bag_messages, load_poses
 
 from ros_harness import RELIABLE, Ros, header, vins_cloud
 
@@ -169,11 +170,12 @@ def test_pearl_play_plays_a_bags_poses_beside_its_features(ros: Ros, tmp_path):
     player = ros.add(Player(bag_messages(tmp_path / 'scene'), context=ros.context,
                             namespace=ros.ns, poses=poses))
     assert player.wait_for_node(ros.executor, 10.0)
-    assert ros.spin_until(lambda: player.pose_publisher.get_subscription_count() > 0)
+    assert player.poses is not None
+    assert ros.spin_until(lambda: player.poses.publisher.get_subscription_count() > 0)
     answers = player.play(ros.executor, timeout_s=10.0)
     assert all(answer is not None for answer in answers)
     # Each pose is stamped 1 us after its frame: it goes out before the next frame.
-    assert player.poses_sent == 15 and node.stats.poses == 15
+    assert player.poses.sent == 15 and node.stats.poses == 15
     final = answers[-1]
     assert final is not None
     assert misclassification(final.labels[np.argsort(final.ids)], truth) < 0.05
@@ -191,10 +193,11 @@ def test_pearl_play_plays_a_bags_camera_info_for_a_node_that_takes_it(ros: Ros, 
                             namespace=ros.ns, poses=load_poses(tmp_path / 'scene', topic),
                             camera_info=info))
     assert player.wait_for_node(ros.executor, 10.0)
-    assert ros.spin_until(lambda: player.camera_info_publisher.get_subscription_count() > 0)
+    assert player.camera_info is not None
+    assert ros.spin_until(lambda: player.camera_info.publisher.get_subscription_count() > 0)
     answers = player.play(ros.executor, timeout_s=10.0)
     assert all(answer is not None for answer in answers)
-    assert player.camera_info_sent == 16 and node.stats.camera_infos >= 1
+    assert player.camera_info.sent == 16 and node.stats.camera_infos >= 1
     assert node.stats.frames_with_camera >= 14
     final = answers[-1]
     assert final is not None
