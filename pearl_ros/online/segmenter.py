@@ -495,12 +495,12 @@ def _static_young(coords: np.ndarray, age: np.ndarray, young: np.ndarray,
     its squared reprojection error as a static point (the units of a subspace distance);
     infinite where the static world does not explain it (a point behind the cameras, or beyond
     ``STATIC_YOUNG`` times the static world's noise level ``sigma``)."""
+    if young.size == 0:
+        return np.empty(0)
     # All young tracks at once, each over its own frames (NaN before its birth is left out).
     points = coords[-cameras.shape[0]:, young]
     known = ~np.isnan(cameras).all(axis=(1, 2))
     used = np.count_nonzero(known[:, None] & ~np.isnan(points[..., 0]), axis=0)
-    if young.size == 0:
-        return np.empty(0)
     residual, in_front = static_residuals(cameras, points)
     explained = in_front & (residual <= STATIC_YOUNG * sigma) & (
         used >= np.minimum(CAMERA_FRAMES, age[young]))

@@ -3,8 +3,8 @@
 A robot that knows where its camera is (visual-inertial odometry such as VINS' ``camera_pose``,
 wheel odometry composed with the camera's mounting, a localiser) publishes it as
 ``nav_msgs/msg/Odometry``, ``geometry_msgs/msg/PoseStamped`` or ``PoseWithCovarianceStamped``:
-the pose of the camera's optical frame (z forward, x
-right, y down, REP 103's ``_optical`` frames) in a fixed world frame. With the camera's
+the pose of the camera's optical frame (z forward, x right, y down, REP 103's ``_optical``
+frames) in a fixed world frame. With the camera's
 intrinsics (pixels from the optical frame: parameters, or ``sensor_msgs/msg/CameraInfo``'s
 ``k``), each pose is one projection matrix ``K [R^T | -R^T c]``, where ``R`` and ``c`` are the
 camera's orientation and position in the world. Poses and feature frames meet by stamp
@@ -46,7 +46,7 @@ def read_intrinsics(msg: Any) -> np.ndarray:
     """The 3 x 3 camera matrix ``k`` of a ``sensor_msgs/msg/CameraInfo`` message: finite,
     ``fx``, ``fy`` > 0 and last row (0, 0, 1) (an uncalibrated camera's all-zero ``k`` is
     refused), for the pixels of the binned, cropped image it describes (``binning_x``,
-``binning_y``, ``roi``). Its lens distortion: :func:`read_lens`."""
+    ``binning_y``, ``roi``). Its lens distortion: :func:`read_lens`."""
     try:
         k = np.asarray(msg.k, dtype=np.float64)
     except AttributeError as err:

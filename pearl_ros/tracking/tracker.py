@@ -146,7 +146,7 @@ class CameraModel:
             return np.zeros((0, 2))
         if self.model == 'equidistant':
             out = cv2.fisheye.undistortPoints(points, self.K, self.distortion)
-        elif self.distortion.size == 0 or not np.any(self.distortion):
+        elif not self.distorted:
             inv = np.linalg.inv(self.K)
             return np.asarray(points.reshape(-1, 2) @ inv[:2, :2].T + inv[:2, 2])
         else:
