@@ -154,3 +154,52 @@ def misclassification(pred: object, truth: object) -> float:
         matched = int(table[rows, cols].sum())
     matched += int(np.count_nonzero((pred_a == OUTLIER) & (truth_a == OUTLIER)))
     return 1.0 - matched / pred_a.size
+
+
+
+class LabelIdentity:
+    """How steadily a stream's motion numbers follow the true motions, frame after frame.
+
+    A user of an online segmenter reads a motion's number as its identity (the car ahead is
+    motion 3 while it is in view), so a number that changes while the motion goes on is an error
+    that the per-frame misclassification does not see: it matches labels anew on every frame.
+    Each frame (:meth:`add`), numbers are matched one-to-one to true motions as
+    :func:`misclassification` matches them; a true motion's *switch* is a frame where it is
+    matched to another number than the last one it was matched to, however many frames ago
+    (a match needs at least one point of the motion to carry the number)
+    (the identity switches of the CLEAR MOT metrics, Bernardin & Stiefelhagen 2008). A motion
+    merged into another is unmatched while merged, not switched: if it comes out of the merge
+    under its old number, nothing is counted, under a new one, one switch. True outliers
+    (``-1``) carry no identity.
+
+    Attributes
+    ----------
+    frames : int, frames added
+    matched : int, true motions matched to a number, summed over the frames
+    switches : int
+    """
+
+    def __init__(self) -> None:
+        self.frames = 0
+        self.matched = 0
+        self.switches = 0
+        self._last: dict[int, int] = {}  # true motion -> the number it was last matched to
+
+    def add(self, pred: object, truth: object) -> None:
+        """Count one frame's labels ``pred`` against its true labels ``truth`` (both (N,))."""
+        table, numbers, motions = contingency(pred, truth)
+        rows, cols = linear_sum_assignment(table, maximize=True) if table.size else ((), ())
+        for row, col in zip(rows, cols, strict=True):
+            if table[row, col] == 0:
+                continue  # a pair the matching made up: no point of the motion has the number
+            number, motion = int(numbers[row]), int(motions[col])
+            last = self._last.get(motion)
+            self.switches += last is not None and last != number
+            self._last[motion] = number
+            self.matched += 1
+        self.frames += 1
+
+    @property
+    def switches_per_100(self) -> float:
+        """Switches per 100 frames (NaN before the first frame)."""
+        return 100.0 * self.switches / self.frames if self.frames else float('nan')

@@ -2,8 +2,8 @@
 
 A tracker's view of rigid bodies under an affine (orthographic, zooming) camera. Body 0 is the
 background; every other body is an object with a rigid motion of its own, which may start
-moving mid-stream or stop (before it starts and after it stops it moves with the background, and
-its ground truth says so). Objects are opaque boxes in front of the background: a background
+moving mid-stream, stop, or pause (before it starts, after it stops and while it pauses it moves
+with the background, and its ground truth says so). Objects are opaque boxes in front of the background: a background
 feature that an object's silhouette covers is lost, and none is born there. Features die at
 random and new ones are born on random bodies (where those bodies are now), new features
 sometimes take ids that died a few frames before (as trackers reuse ids), and every frame
@@ -41,11 +41,18 @@ class StreamFrame:
 
 @dataclass(frozen=True)
 class BodySpec:
-    """An object: share of the features, and the frames between which it moves on its own."""
+    """An object: share of the features, the frames between which it moves on its own, and
+    frames ``[pause[0], pause[1])`` in between when it moves with the background."""
 
     share: float
     start: int = 0
     stop: int | None = None
+    pause: tuple[int, int] | None = None
+
+    def moving(self, t: int) -> bool:
+        """Whether the object moves on its own in frame ``t``."""
+        paused = self.pause is not None and self.pause[0] <= t < self.pause[1]
+        return self.start <= t and (self.stop is None or t < self.stop) and not paused
 
 
 def _rotation(rng: np.random.Generator, angle: float) -> np.ndarray:
@@ -204,8 +211,7 @@ def synthetic_stream(
     scene = _Scene(rng, shares)
     features = _Features(scene, num_features)
     for t in range(frames):
-        moving = np.array([True] + [o.start <= t and (o.stop is None or t < o.stop)
-                                    for o in objects])
+        moving = np.array([True] + [o.moving(t) for o in objects])
         if t:
             scene.move(moving)
             features.replace_lost(t, death_rate)

@@ -13,9 +13,11 @@ keys) and the other spanning tracks go to its models by their data cost alone
 
 Label identity: motions carry numbers that persist. After each fit, its segments are matched
 one-to-one to the numbers their tracks had in the previous frame (the assignment that agrees on
-most tracks). A segment keeps the number it shares most tracks with, a segment made mostly of
-tracks that had no number, or that lost the matching, gets a fresh one, and a number matched to
-no segment is retired for good.
+most tracks). A segment keeps the number it shares most tracks with; a number matched to no
+segment is retired. A segment made mostly of tracks that had no number, or that lost the
+matching, takes back the retired number most of its tracks carried before their current one (a
+motion that merged into another for a few frames and split off again), or else a fresh one.
+Numbers are given out again only that way.
 """
 
 from __future__ import annotations
@@ -112,6 +114,10 @@ class OnlineSegmenter:
         # Track keys (sorted) labelled in the last frame, and their motion numbers.
         self._labelled_keys = np.empty(0, dtype=np.int64)
         self._labelled_motions = np.empty(0, dtype=np.int64)
+        # Track keys (sorted) that carried another number before their current one (or before
+        # -1), and that number: what a motion split off again is known by.
+        self._before_keys = np.empty(0, dtype=np.int64)
+        self._before_motions = np.empty(0, dtype=np.int64)
         self._next_label = 0
         self._scales: dict[str, tuple[float, int]] = {}  # model -> (px, fitted frames since)
         self._quiet = 0  # warm fits since the last one with fresh proposals
@@ -130,6 +136,7 @@ class OnlineSegmenter:
         """Empty the window. Motion numbers already used are never given out again."""
         self._window.clear()
         self._labelled_keys = self._labelled_motions = np.empty(0, dtype=np.int64)
+        self._before_keys = self._before_motions = np.empty(0, dtype=np.int64)
         self._scales = {}
         self._quiet = 0
         self._graph = None
@@ -240,7 +247,7 @@ class OnlineSegmenter:
                 segments = np.empty(fitted.size, dtype=np.int64)
                 segments[chosen] = result.labels
                 segments[rest] = assign(tracks[:, rest], result, config, cameras)
-            motion_labels[fitted] = self._identify(segments, prior)
+            motion_labels[fitted] = self._identify(segments, prior, fitted_keys)
             static = _static_model(result) if cameras is not None else None
             members = np.flatnonzero(segments == static) if static is not None else fitted[:0]
             static_motion = int(motion_labels[fitted[members[0]]]) if members.size else None
@@ -274,6 +281,12 @@ class OnlineSegmenter:
         labels[seen] = motion_labels
         labelled = np.flatnonzero(motion_labels != OUTLIER)
         by_key = labelled[np.argsort(keys[labelled], kind='stable')]
+        last = lookup(self._labelled_keys, self._labelled_motions, keys, OUTLIER)
+        before = np.where((last != OUTLIER) & (last != motion_labels), last,
+                          lookup(self._before_keys, self._before_motions, keys, OUTLIER))
+        remembered = np.flatnonzero(before != OUTLIER)
+        remembered = remembered[np.argsort(keys[remembered], kind='stable')]
+        self._before_keys, self._before_motions = keys[remembered], before[remembered]
         self._labelled_keys, self._labelled_motions = keys[by_key], motion_labels[by_key]
         return FrameResult(stamp_ns, labels, num_motions(motion_labels), span, fitted,
                            model_name, reset, warm, time.perf_counter() - start, static_motion)
@@ -305,7 +318,7 @@ class OnlineSegmenter:
             self._quiet, self._energy_ref = 0, result.energy / max(cold.keys.size, 1)
         # The labels so far (the result's once done), numbered as the last frame answered.
         prior = lookup(self._labelled_keys, self._labelled_motions, cold.keys, OUTLIER)
-        numbers = self._identify(segments[cold.order], prior)
+        numbers = self._identify(segments[cold.order], prior, cold.keys)
         motion_labels = lookup(cold.keys, numbers, keys, OUTLIER)
         return self._answer(keys, motion_labels, seen, n, stamp_ns, cold.frames,
                             int(cold.keys.size), cold.model, reset, False, start)
@@ -407,8 +420,10 @@ class OnlineSegmenter:
         self._scales[model_name] = (scale, age + 1)
         return scale
 
-    def _identify(self, segments: np.ndarray, prior: np.ndarray) -> np.ndarray:
-        """Motion numbers for ``segments`` (0..K-1, -1), matched to the ``prior`` numbers."""
+    def _identify(self, segments: np.ndarray, prior: np.ndarray, keys: np.ndarray
+                  ) -> np.ndarray:
+        """Motion numbers for ``segments`` (0..K-1, -1) of the tracks ``keys``, matched to the
+        ``prior`` numbers those tracks carried in the last frame (module docstring)."""
         out = np.full(segments.size, OUTLIER, dtype=np.int64)
         num = int(segments.max()) + 1 if segments.size else 0
         if num == 0:
@@ -425,6 +440,7 @@ class OnlineSegmenter:
                 # Keep a number only for a segment made mostly of tracks that carried it.
                 if 2 * table[r, c] > np.count_nonzero(segments == r):
                     number[r] = olds[c]
+        self._take_back(number, segments, keys)
         for r in range(num):
             if number[r] == OUTLIER:
                 number[r] = self._next_label
@@ -432,6 +448,29 @@ class OnlineSegmenter:
         inlier = segments != OUTLIER
         out[inlier] = number[segments[inlier]]
         return out
+
+    def _take_back(self, number: np.ndarray, segments: np.ndarray, keys: np.ndarray) -> None:
+        """Give the segments still without a number (``number`` -1) the retired number that
+        most of their tracks carried before their current one, where one does; in place. The
+        segments with the most such tracks choose first."""
+        open_ = np.flatnonzero(number == OUTLIER)
+        if open_.size == 0 or self._before_keys.size == 0:
+            return
+        before = lookup(self._before_keys, self._before_motions, keys, OUTLIER)
+        claims = []
+        for r in open_.tolist():
+            members = segments == r
+            held = before[members & (before != OUTLIER)]
+            if held.size:
+                values, counts = np.unique(held, return_counts=True)
+                best = int(np.argmax(counts))
+                if 2 * counts[best] > np.count_nonzero(members):
+                    claims.append((-int(counts[best]), r, int(values[best])))
+        taken = set(number[number != OUTLIER].tolist())
+        for _, r, value in sorted(claims):
+            if value not in taken:
+                number[r] = value
+                taken.add(value)
 
 
 @dataclass

@@ -1,4 +1,5 @@
-"""Misclassification rate against a brute-force oracle over every one-to-one label matching."""
+"""Misclassification rate against a brute-force oracle over every one-to-one label matching;
+label identity over a stream against switches counted by hand."""
 
 from __future__ import annotations
 
@@ -9,6 +10,7 @@ import pytest
 
 from pearl_ros.core.errors import InputError
 from pearl_ros.core.metrics import (
+    LabelIdentity,
     contingency,
     match_labels,
     misclassification,
@@ -140,3 +142,56 @@ def test_relabel_gives_unmatched_groups_fresh_labels():
 def test_bad_input_raises_input_error(pred, truth, message):
     with pytest.raises(InputError, match=message):
         misclassification(pred, truth)
+
+
+def count_switches(frames):
+    identity = LabelIdentity()
+    for pred, truth in frames:
+        identity.add(np.array(pred), np.array(truth))
+    return identity
+
+
+def test_identity_numbers_that_follow_their_motions_do_not_switch():
+    truth = [0, 0, 0, 1, 1, 2, 2, -1]
+    frames = [([5, 5, 5, 9, 9, 3, 3, 9], truth)] * 4 + [([5, 5, 9, 9, 9, 3, 3, -1], truth)]
+    identity = count_switches(frames)
+    assert (identity.frames, identity.switches, identity.matched) == (5, 0, 15)
+
+
+def test_identity_a_motion_renumbered_switches_once_and_its_new_number_then_holds():
+    truth = [0, 0, 0, 1, 1, 1]
+    frames = [([0, 0, 0, 1, 1, 1], truth), ([0, 0, 0, 4, 4, 4], truth),
+              ([0, 0, 0, 4, 4, 4], truth)]
+    assert count_switches(frames).switches == 1
+    assert count_switches(frames).switches_per_100 == pytest.approx(100 / 3)
+
+
+def test_identity_a_merged_motion_is_unmatched_and_switches_only_under_a_new_number():
+    # Frame 2 merges motion 1 into motion 0's number 0: the matching gives number 0 to motion
+    # 0 (four points against three), so motion 1 is unmatched there, not switched.
+    truth = [0, 0, 0, 0, 1, 1, 1]
+    back = [([0, 0, 0, 0, 1, 1, 1], truth), ([0, 0, 0, 0, 0, 0, 0], truth),
+            ([0, 0, 0, 0, 1, 1, 1], truth)]
+    renumbered = back[:2] + [([0, 0, 0, 0, 2, 2, 2], truth)]
+    assert count_switches(back).switches == 0
+    assert count_switches(renumbered).switches == 1
+
+
+def test_identity_a_motion_out_of_view_keeps_its_last_number():
+    frames = [([0, 0, 1, 1], [0, 0, 1, 1]), ([0, 0], [0, 0]), ([0, 0, 7], [0, 0, 1]),
+              ([0, 0, 1], [0, 0, 1])]
+    # Motion 1 leaves, comes back as 7 (a switch), then is 1 again (another).
+    assert count_switches(frames).switches == 2
+
+
+def test_identity_ignores_outliers_and_pairs_the_matching_makes_up():
+    # Three true motions, two numbers: the matching pairs every number, but motion 2's points
+    # are all -1, so no number is its own; true outliers carry no identity whatever they get.
+    truth = [0, 0, 1, 1, 2, 2, -1, -1]
+    frames = [([3, 3, 4, 4, -1, -1, 3, 4], truth), ([3, 3, 4, 4, -1, -1, 4, 3], truth)]
+    identity = count_switches(frames)
+    assert (identity.switches, identity.matched) == (0, 4)
+
+
+def test_identity_of_an_empty_run_is_nan_per_100_frames():
+    assert np.isnan(LabelIdentity().switches_per_100)

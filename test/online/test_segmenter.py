@@ -101,6 +101,24 @@ def test_an_object_that_stops_retires_its_number_for_good():
         assert np.mean(results[t].labels == background) > 0.9
 
 
+@pytest.mark.parametrize('seed', [0, 2])
+def test_an_object_that_pauses_takes_its_number_back_when_it_moves_again(seed):
+    # The object moves with the background over frames 15-29: its segment merges into the
+    # background's and its number is retired; its tracks still remember it (1% of them die a
+    # frame), so when it moves on its own again the segment split off takes it back.
+    frames = list(synthetic_stream(200, 60, (BodySpec(0.4, pause=(15, 30)),), death_rate=0.01,
+                                   seed=seed))
+    _, results = run(frames)
+    background = number_of(results[14], frames[14], 0)
+    car = number_of(results[14], frames[14], 1)
+    assert results[14].motions == 2 and car not in (background, -1)
+    assert results[29].motions == 1 and car not in results[29].labels
+    for t in range(30 + WINDOW + 5, len(frames)):
+        assert results[t].motions == 2
+        assert number_of(results[t], frames[t], 0) == background
+        assert number_of(results[t], frames[t], 1) == car
+
+
 def test_feature_order_does_not_change_the_labels_of_a_feature():
     frames = list(synthetic_stream(150, 25, (BodySpec(0.4),), seed=3))
     rng = np.random.default_rng(0)
