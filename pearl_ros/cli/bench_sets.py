@@ -106,7 +106,7 @@ def _report(scores: list[Score], title: str, items: bool) -> None:
             extra = ('' if math.isnan(s.outlier_recall_pct)
                      else f' outliers -1 {s.outlier_recall_pct:.1f}%')
             if not math.isnan(s.half_pct):
-                extra += f'  2nd half {s.half_pct:.2f}%'
+                extra += f'  2nd half {s.half_pct:.2f}%  switches {s.switches}'
             print(f'{s.dataset:<22}{s.name:<24}{s.error_pct:7.2f}%  motions '
                   f'{s.motions_found}/{s.motions_true}{extra}  {s.seconds:.3f}s')
         print()
@@ -207,7 +207,8 @@ def _suite_item(item: tuple[str, Any]) -> Score:
     srow = stream_one(task)
     seconds = sum(srow.latencies_ms) / 1000.0 / max(len(srow.latencies_ms), 1)
     return Score('hopkins155_stream', srow.name, srow.final_pct, srow.motions_true,
-                 srow.motions_found, srow.points, seconds, half_pct=srow.second_half_pct)
+                 srow.motions_found, srow.points, seconds, half_pct=srow.second_half_pct,
+                 switches=srow.switches, frames=srow.frames)
 
 
 def _suite_items(data: Path, args: argparse.Namespace) -> list[tuple[str, Any]]:

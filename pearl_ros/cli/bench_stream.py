@@ -49,6 +49,8 @@ class StreamRow:
     changes_pct : float, percent of features whose label changes between consecutive labelled
         frames (the true motion of a Hopkins point never changes)
     latencies_ms : tuple of float, per frame
+    switches : int, identity switches of the true motions over the frames
+        (:class:`~pearl_ros.core.metrics.LabelIdentity`)
     """
 
     name: str
@@ -61,6 +63,7 @@ class StreamRow:
     second_half_pct: float
     changes_pct: float
     latencies_ms: tuple[float, ...]
+    switches: int = 0
 
 
 @dataclass(frozen=True)
@@ -73,7 +76,7 @@ class StreamTask:
 
 def stream_one(task: StreamTask) -> StreamRow:
     """Stream one Hopkins sequence; top level so that worker processes can import it."""
-    from pearl_ros.core.metrics import misclassification
+    from pearl_ros.core.metrics import LabelIdentity, misclassification
     from pearl_ros.datasets.hopkins import load_sequence
     from pearl_ros.online.segmenter import OnlineSegmenter
 
@@ -84,12 +87,14 @@ def stream_one(task: StreamTask) -> StreamRow:
     segmenter = OnlineSegmenter(task.config, task.online)
     ids = np.arange(seq.tracks.shape[1])
     errors, latencies, changes = [], [], []
+    identity = LabelIdentity()
     previous = None
     result = None
     for f, uv in enumerate(seq.tracks):
         result = segmenter.process(1_000_000_000 + f * FRAME_NS, ids, uv)
         latencies.append(1e3 * result.latency_s)
         errors.append(misclassification(result.labels, seq.labels))
+        identity.add(result.labels, seq.labels)
         if previous is not None and result.frames and previous.frames:
             changes.append(float(np.mean(result.labels != previous.labels)))
         previous = result
@@ -100,7 +105,7 @@ def stream_one(task: StreamTask) -> StreamRow:
         motions_found=result.motions, points=int(ids.size), frames=len(errors),
         final_pct=100.0 * errors[-1], second_half_pct=100.0 * statistics.fmean(half),
         changes_pct=100.0 * statistics.fmean(changes) if changes else 0.0,
-        latencies_ms=tuple(latencies))
+        latencies_ms=tuple(latencies), switches=identity.switches)
 
 
 def _mean_median(values: list[float]) -> str:
@@ -124,6 +129,9 @@ def format_stream(rows: Sequence[StreamRow], title: str) -> str:
     frames = sum(r.frames - 1 for r in rows)
     changes = sum(r.changes_pct * (r.frames - 1) for r in rows) / max(frames, 1)
     lines.append(f'Label changes between consecutive frames: {changes:.2f}% of features')
+    switches, streamed = sum(r.switches for r in rows), sum(r.frames for r in rows)
+    lines.append(f'Identity switches (a true motion matched to another number than before): '
+                 f'{switches}, {100.0 * switches / max(streamed, 1):.2f} per 100 frames')
     lat = percentiles([x for r in rows for x in r.latencies_ms])
     lines.append(f'Latency per frame (ms): p50 {lat["p50"]:.1f}, p95 {lat["p95"]:.1f}, '
                  f'p99 {lat["p99"]:.1f}, max {lat["max"]:.1f} '

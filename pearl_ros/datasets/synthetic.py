@@ -2,9 +2,10 @@
 
 A tracker's view of rigid bodies under an affine (orthographic, zooming) camera. Body 0 is the
 background; every other body is an object with a rigid motion of its own, which may start
-moving mid-stream, stop, or pause (before it starts, after it stops and while it pauses it moves
-with the background, and its ground truth says so). Objects are opaque boxes in front of the background: a background
-feature that an object's silhouette covers is lost, and none is born there. Features die at
+moving mid-stream, stop, or pause (before it starts, after it stops and while it pauses it
+moves with the background, and its ground truth says so). Objects are opaque boxes in front of
+the background: a background feature that an object's silhouette covers is lost, and none is
+born there. Features die at
 random and new ones are born on random bodies (where those bodies are now), new features
 sometimes take ids that died a few frames before (as trackers reuse ids), and every frame
 lists its features in a new order.

@@ -21,7 +21,7 @@ import numpy as np
 from pearl_ros.core.config import PearlConfig
 from pearl_ros.core.errors import PearlError
 from pearl_ros.core.labels import OUTLIER, num_motions
-from pearl_ros.core.metrics import misclassification
+from pearl_ros.core.metrics import LabelIdentity, misclassification
 from pearl_ros.online.config import OnlineConfig
 
 FRAME_NS = 33_333_333  # 30 Hz stamps for streamed items
@@ -44,6 +44,8 @@ class Score:
     half_pct : float, for a stream, the mean misclassification over the second half of its
         frames in percent (the final frame alone swings with one frame's split or merge); NaN
         for a batch or two-frame item
+    switches, frames : int, for a stream, the identity switches of its true motions
+        (:class:`~pearl_ros.core.metrics.LabelIdentity`) over its frames; 0 and 0 otherwise
     """
 
     dataset: str
@@ -56,6 +58,8 @@ class Score:
     outlier_recall_pct: float = math.nan
     rejected_pct: float = math.nan
     half_pct: float = math.nan
+    switches: int = 0
+    frames: int = 0
 
 
 @dataclass(frozen=True)
@@ -74,13 +78,15 @@ class Task:
 
 
 def score(dataset: str, name: str, pred: np.ndarray, truth: np.ndarray, seconds: float,
-          motions_found: int, outliers_apart: bool = False, half_pct: float = math.nan
+          motions_found: int, outliers_apart: bool = False, half_pct: float = math.nan,
+          identity: LabelIdentity | None = None
           ) -> Score:
     """A :class:`Score` of ``pred`` against ``truth`` (``-1`` = outlier in both).
 
     With ``outliers_apart`` the error counts the true motion points only (a true point
     labelled -1 is wrong) and the outliers are judged by recall alone, as when outlier tracks
-    were added to a clean set. ``half_pct`` is passed on (:attr:`Score.half_pct`).
+    were added to a clean set. ``half_pct`` is passed on (:attr:`Score.half_pct`), and a
+    stream's ``identity`` gives :attr:`Score.switches` and :attr:`Score.frames`.
     """
     pred, truth = np.asarray(pred), np.asarray(truth)
     true = truth != OUTLIER
@@ -90,8 +96,10 @@ def score(dataset: str, name: str, pred: np.ndarray, truth: np.ndarray, seconds:
         error = misclassification(pred, truth)
     recall = 100.0 * float(np.mean(pred[~true] == OUTLIER)) if np.any(~true) else math.nan
     rejected = 100.0 * float(np.mean(pred[true] == OUTLIER)) if np.any(true) else math.nan
+    switches, frames = (identity.switches, identity.frames) if identity is not None else (0, 0)
     return Score(dataset, name, 100.0 * error, num_motions(truth),
-                 int(motions_found), int(truth.size), seconds, recall, rejected, half_pct)
+                 int(motions_found), int(truth.size), seconds, recall, rejected, half_pct,
+                 switches, frames)
 
 
 def run_task(task: Task) -> Score:
@@ -113,24 +121,26 @@ def _fit(tracks: np.ndarray, config: PearlConfig, seed: int) -> tuple[np.ndarray
 
 def _stream(frames: list[tuple[np.ndarray, np.ndarray, np.ndarray]], config: PearlConfig,
             online: OnlineConfig, cameras: list[np.ndarray] | None = None
-            ) -> tuple[np.ndarray, np.ndarray, int, float, float]:
+            ) -> tuple[np.ndarray, np.ndarray, int, float, float, LabelIdentity]:
     """Feed (ids, uv, truth) frames to an online segmenter (with each frame's projection
     matrix, if ``cameras``): the final frame's labels and truth, its motion count, the mean
-    seconds per frame, and the mean misclassification (percent) over the second half of the
-    frames (outliers a group of their own, as in :func:`score`)."""
+    seconds per frame, the mean misclassification (percent) over the second half of the
+    frames (outliers a group of their own, as in :func:`score`), and the identity switches
+    over every frame."""
     from pearl_ros.online.segmenter import OnlineSegmenter
 
     segmenter = OnlineSegmenter(config, online)
-    seconds, half = 0.0, []
+    seconds, half, identity = 0.0, [], LabelIdentity()
     for t, (ids, uv, truth) in enumerate(frames):
         start = time.perf_counter()
         result = segmenter.process(1_000_000_000 + t * FRAME_NS, ids, uv,
                                    None if cameras is None else cameras[t])
         seconds += time.perf_counter() - start
+        identity.add(result.labels, truth)
         if t >= len(frames) // 2:
             half.append(misclassification(result.labels, truth))
     return (result.labels, frames[-1][2], result.motions, seconds / max(len(frames), 1),
-            100.0 * float(np.mean(half)))
+            100.0 * float(np.mean(half)), identity)
 
 
 def _through_lens(frames: list[tuple[np.ndarray, np.ndarray, np.ndarray]], k1: float,
@@ -174,8 +184,10 @@ def _kt3dmoseg(task: Task) -> Score:
     dataset = f'kt3dmoseg_{task.mode}'
     if task.mode == 'stream':
         online = dataclasses.replace(task.online, seed=task.seed)
-        labels, truth, found, seconds, half = _stream(list(clip.frames()), task.config, online)
-        return score(dataset, clip.name, labels, truth, seconds, found, half_pct=half)
+        labels, truth, found, seconds, half, identity = _stream(list(clip.frames()),
+                                                                task.config, online)
+        return score(dataset, clip.name, labels, truth, seconds, found, half_pct=half,
+                     identity=identity)
     if task.mode == 'two':
         tracks, truth = clip.two_frames()
         config = dataclasses.replace(task.config, model='fundamental')
@@ -217,9 +229,10 @@ def _robot(task: Task) -> Score:
     if task.mode == 'cameras':
         scene = robot_scene(len(frames), seed)
         cameras = [scene.camera(t) for t in range(len(frames))]
-    labels, truth, found, seconds, half = _stream(frames, task.config, online, cameras)
+    labels, truth, found, seconds, half, identity = _stream(frames, task.config, online, cameras)
     name = 'robot_synthetic_cameras' if cameras is not None else 'robot_synthetic'
-    return score(name, f'seed{seed}', labels, truth, seconds, found, half_pct=half)
+    return score(name, f'seed{seed}', labels, truth, seconds, found, half_pct=half,
+                 identity=identity)
 
 
 _RUNNERS = {
@@ -244,6 +257,7 @@ class Summary:
     rejected_pct: float
     seconds: float  # median per item (per frame for streams)
     half_pct: float = math.nan  # mean of the streams' Score.half_pct (NaN for other sets)
+    switches_per_100: float = math.nan  # streams: identity switches per 100 frames, all items
 
 
 def summarise(scores: list[Score]) -> list[Summary]:
@@ -255,26 +269,31 @@ def summarise(scores: list[Score]) -> list[Summary]:
         recall = [s.outlier_recall_pct for s in mine if not math.isnan(s.outlier_recall_pct)]
         rejected = [s.rejected_pct for s in mine if not math.isnan(s.rejected_pct)]
         half = [s.half_pct for s in mine if not math.isnan(s.half_pct)]
+        frames = sum(s.frames for s in mine)
         out.append(Summary(
             dataset, len(mine), float(errors.mean()), float(np.median(errors)),
             100.0 * float(np.mean([s.motions_found == s.motions_true for s in mine])),
             float(np.mean(recall)) if recall else math.nan,
             float(np.mean(rejected)) if rejected else math.nan,
             float(np.median([s.seconds for s in mine])),
-            float(np.mean(half)) if half else math.nan))
+            float(np.mean(half)) if half else math.nan,
+            100.0 * sum(s.switches for s in mine) / frames if frames else math.nan))
     return out
 
 
 def format_summaries(summaries: list[Summary]) -> str:
     """The suite table: one line per data set. ``2nd half %``: for streams, the mean over
-    their items of the misclassification averaged over the second half of the frames."""
+    their items of the misclassification averaged over the second half of the frames;
+    ``switches/100``: their true motions' identity switches per 100 frames."""
     head = (f'{"set":<22}{"items":>6}{"mean %":>9}{"median %":>10}{"motions ok %":>14}'
-            f'{"outl. -1 %":>12}{"true -1 %":>11}{"s/item":>9}{"2nd half %":>12}')
+            f'{"outl. -1 %":>12}{"true -1 %":>11}{"s/item":>9}{"2nd half %":>12}'
+            f'{"switches/100":>14}')
     lines = [head]
     for s in summaries:
         def num(value: float, spec: str = '.2f') -> str:
             return '-' if math.isnan(value) else format(value, spec)
         lines.append(f'{s.dataset:<22}{s.items:>6}{s.mean_pct:>9.2f}{s.median_pct:>10.2f}'
                      f'{s.motions_right_pct:>14.1f}{num(s.outlier_recall_pct, ".1f"):>12}'
-                     f'{num(s.rejected_pct):>11}{s.seconds:>9.3f}{num(s.half_pct):>12}')
+                     f'{num(s.rejected_pct):>11}{s.seconds:>9.3f}{num(s.half_pct):>12}'
+                     f'{num(s.switches_per_100):>14}')
     return '\n'.join(lines)

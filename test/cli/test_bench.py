@@ -382,3 +382,12 @@ def test_latency_bench_gives_each_frame_its_true_camera_with_cameras(capsys, mon
     assert main(['latency', '--frames', '8', '--features', '60', '--windows', '3',
                  '--cameras', '--stream', 'synthetic']) == 1
     assert '--cameras needs --stream robot' in capsys.readouterr().err
+
+
+def test_format_stream_counts_identity_switches_per_100_streamed_frames():
+    from pearl_ros.cli.bench_stream import StreamRow, format_stream
+
+    rows = [StreamRow('a', 'checkerboard', 2, 2, 50, 10, 0.0, 0.0, 0.0, (1.0,) * 10, switches=1),
+            StreamRow('b', 'traffic', 3, 3, 80, 20, 0.0, 0.0, 0.0, (1.0,) * 20, switches=2)]
+    line = [x for x in format_stream(rows, 'title').splitlines() if x.startswith('Identity')]
+    assert line and line[0].endswith(': 3, 10.00 per 100 frames')

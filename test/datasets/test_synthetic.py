@@ -42,8 +42,8 @@ def test_a_paused_object_moves_with_the_background_and_its_truth_says_so():
 
     def residual(a, b, ids):
         """RMS residual of one least-squares 2-D affine map from frame a to frame b."""
-        pa = dict(zip(a.ids.tolist(), a.uv.tolist()))
-        pb = dict(zip(b.ids.tolist(), b.uv.tolist()))
+        pa = dict(zip(a.ids.tolist(), a.uv.tolist(), strict=True))
+        pb = dict(zip(b.ids.tolist(), b.uv.tolist(), strict=True))
         both = [i for i in ids if i in pa and i in pb]
         src = np.array([pa[i] + [1.0] for i in both])
         dst = np.array([pb[i] for i in both])

@@ -13,6 +13,7 @@ import scipy.io
 from pearl_ros.cli.bench import main
 from pearl_ros.core.config import PearlConfig
 from pearl_ros.core.errors import InputError
+from pearl_ros.core.metrics import LabelIdentity
 from pearl_ros.evaluation.sets import Task, format_summaries, run_task, score, summarise
 from pearl_ros.online.config import OnlineConfig
 
@@ -57,7 +58,25 @@ def test_the_second_half_column_averages_the_stream_items_only() -> None:
     streams, batch = summarise(scores)
     assert streams.half_pct == pytest.approx(20.0) and math.isnan(batch.half_pct)
     table = format_summaries([streams, batch]).splitlines()
-    assert table[0].split()[-3:] == ['2nd', 'half', '%']
+    assert table[0].split()[-4:] == ['2nd', 'half', '%', 'switches/100']
+    assert table[1].split()[-2] == '20.00' and table[2].split()[-2] == '-'
+
+
+def test_the_switches_column_counts_every_frame_of_a_set_s_streams() -> None:
+    truth = np.array([0, 1])
+    first, second = LabelIdentity(), LabelIdentity()
+    for pred in ([0, 1], [0, 2], [0, 2], [3, 2]):  # two switches in four frames
+        first.add(np.array(pred), truth)
+    for _ in range(6):  # none in six
+        second.add(truth, truth)
+    scores = [score('s', 'x', truth, truth, 1.0, 2, half_pct=0.0, identity=first),
+              score('s', 'y', truth, truth, 1.0, 2, half_pct=0.0, identity=second),
+              score('b', 'z', truth, truth, 1.0, 2)]
+    assert (scores[0].switches, scores[0].frames, scores[2].frames) == (2, 4, 0)
+    streams, batch = summarise(scores)
+    assert streams.switches_per_100 == pytest.approx(20.0)  # 2 in 10 frames
+    assert math.isnan(batch.switches_per_100)
+    table = format_summaries([streams, batch]).splitlines()
     assert table[1].split()[-1] == '20.00' and table[2].split()[-1] == '-'
 
 
