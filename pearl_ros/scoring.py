@@ -22,7 +22,7 @@ import numpy as np
 from pearl_ros.bagio import reader
 from pearl_ros.core.errors import InputError
 from pearl_ros.core.labels import OUTLIER, num_motions
-from pearl_ros.core.metrics import misclassification
+from pearl_ros.core.metrics import LabelIdentity, identities, misclassification
 
 TRUTH_TOPIC = '/ground_truth/labels'
 LABELS_TOPIC = '/motion_labels'
@@ -111,6 +111,9 @@ class FrameScore:
         truth puts in a motion counts as wrong); None when ``scored`` is 0.
     wrong : int
         Scored features labelled wrongly (``error * scored``).
+    identities : tuple of (int, int)
+        (true motion, label) pairs of the frame's one-to-one matching
+        (:func:`~pearl_ros.core.metrics.identities`), for the identity switches over frames.
     """
 
     stamp_ns: int
@@ -123,6 +126,7 @@ class FrameScore:
     outliers_found: int
     error: float | None
     wrong: int
+    identities: tuple[tuple[int, int], ...] = ()
 
 
 def score_frame(stamp_ns: int, ids: np.ndarray, labels: np.ndarray,
@@ -155,6 +159,7 @@ def score_frame(stamp_ns: int, ids: np.ndarray, labels: np.ndarray,
         true_outliers=int(np.count_nonzero(true == OUTLIER)),
         outliers_found=int(np.count_nonzero((true == OUTLIER) & (pred == OUTLIER))),
         error=error, wrong=int(round(error * true.size)),
+        identities=tuple(sorted(identities(pred, true).items())),
     )
 
 
@@ -182,6 +187,9 @@ class Summary:
         Counted frames in which as many motions were found as the truth has.
     true_outliers, outliers_found : int
         Summed over the counted frames.
+    switches : int
+        Identity switches over the counted frames: a true motion matched to another label than
+        the last one it was matched to (:class:`~pearl_ros.core.metrics.LabelIdentity`).
     """
 
     frames: int
@@ -194,6 +202,7 @@ class Summary:
     motions_right: int
     true_outliers: int
     outliers_found: int
+    switches: int = 0
 
 
 def summarise(scores: Sequence[FrameScore]) -> Summary:
@@ -202,6 +211,9 @@ def summarise(scores: Sequence[FrameScore]) -> Summary:
     counted = [row for row in scores if row.labelled > 0 and row.error is not None]
     untruthed = sum(row.labelled > 0 and row.error is None for row in scores)
     scored = sum(row.scored for row in counted)
+    identity = LabelIdentity()
+    for row in counted:
+        identity.count(dict(row.identities))
     return Summary(
         frames=len(scores),
         unlabelled=unlabelled,
@@ -213,6 +225,7 @@ def summarise(scores: Sequence[FrameScore]) -> Summary:
         motions_right=sum(row.motions == row.true_motions for row in counted),
         true_outliers=sum(row.true_outliers for row in counted),
         outliers_found=sum(row.outliers_found for row in counted),
+        switches=identity.switches,
     )
 
 
@@ -234,6 +247,8 @@ def summary_lines(summary: Summary) -> list[str]:
         f'  {percent(summary.mean).strip()} mean per frame, {percent(summary.last).strip()} on '
         'the last frame',
         f'motions: as many found as true in {summary.motions_right} of {summary.counted} frames',
+        f'identity: {summary.switches} switch{"" if summary.switches == 1 else "es"} (a true '
+        'motion matched to another label than the one it last had)',
     ]
     if summary.true_outliers:
         lines.append(f'outliers: {summary.outliers_found} of the {summary.true_outliers} '

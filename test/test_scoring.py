@@ -55,6 +55,8 @@ def test_the_summary_counts_frames_with_labels_and_truth_only() -> None:
         'features,',
         '  25.0% mean per frame, 25.0% on the last frame',
         'motions: as many found as true in 1 of 1 frames',
+        'identity: 0 switches (a true motion matched to another label than the one it last '
+        'had)',
         'not counted: frame 0, without labels (a motion needs two frames: the first has none)',
         'not counted: 1 frame(s) without ground truth',
     ]
@@ -64,3 +66,12 @@ def test_the_summary_counts_frames_with_labels_and_truth_only() -> None:
     assert summary_lines(late)[-1] == (
         'not counted: frames 0, 1, without labels (a motion needs two frames: the first has '
         'none; under a time budget the first fit can take a few frames more)')
+
+
+def test_the_summary_counts_identity_switches_over_the_counted_frames() -> None:
+    truth = GroundTruth([(k, IDS, np.array([0, 0, 1, 1])) for k in range(5)])
+    labels = ([0, 0, 1, 1], [-1, -1, -1, -1], [0, 0, 1, 1], [0, 0, 2, 2], [0, 0, 2, 2])
+    summary = summarise([score_frame(k, IDS, np.array(x), truth) for k, x in enumerate(labels)])
+    # Motion 1 goes from label 1 to 2 once; the unlabelled frame is not counted.
+    assert summary.switches == 1
+    assert 'identity: 1 switch (' in '\n'.join(summary_lines(summary))

@@ -10,6 +10,8 @@ The best matching is a linear assignment on the contingency table (Hungarian met
 
 from __future__ import annotations
 
+from collections.abc import Mapping
+
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
@@ -157,6 +159,18 @@ def misclassification(pred: object, truth: object) -> float:
 
 
 
+def identities(pred: object, truth: object) -> dict[int, int]:
+    """True motion -> the predicted label matched to it one-to-one, as :func:`misclassification`
+    matches them; a pair that shares no point is left out (the matching pairs every label it
+    can, and a true motion whose points are all ``-1`` has no label of its own)."""
+    table, numbers, motions = contingency(pred, truth)
+    if table.size == 0:
+        return {}
+    rows, cols = linear_sum_assignment(table, maximize=True)
+    return {int(motions[c]): int(numbers[r]) for r, c in zip(rows, cols, strict=True)
+            if table[r, c] > 0}
+
+
 class LabelIdentity:
     """How steadily a stream's motion numbers follow the true motions, frame after frame.
 
@@ -166,8 +180,8 @@ class LabelIdentity:
     Each frame (:meth:`add`), numbers are matched one-to-one to true motions as
     :func:`misclassification` matches them; a true motion's *switch* is a frame where it is
     matched to another number than the last one it was matched to, however many frames ago
-    (a match needs at least one point of the motion to carry the number)
-    (the identity switches of the CLEAR MOT metrics, Bernardin & Stiefelhagen 2008). A motion
+    (:func:`identities`; the identity switches of the CLEAR MOT metrics, Bernardin &
+    Stiefelhagen 2008). A motion
     merged into another is unmatched while merged, not switched: if it comes out of the merge
     under its old number, nothing is counted, under a new one, one switch. True outliers
     (``-1``) carry no identity.
@@ -187,12 +201,11 @@ class LabelIdentity:
 
     def add(self, pred: object, truth: object) -> None:
         """Count one frame's labels ``pred`` against its true labels ``truth`` (both (N,))."""
-        table, numbers, motions = contingency(pred, truth)
-        rows, cols = linear_sum_assignment(table, maximize=True) if table.size else ((), ())
-        for row, col in zip(rows, cols, strict=True):
-            if table[row, col] == 0:
-                continue  # a pair the matching made up: no point of the motion has the number
-            number, motion = int(numbers[row]), int(motions[col])
+        self.count(identities(pred, truth))
+
+    def count(self, matched: Mapping[int, int]) -> None:
+        """Count one frame from its :func:`identities` (true motion -> number)."""
+        for motion, number in matched.items():
             last = self._last.get(motion)
             self.switches += last is not None and last != number
             self._last[motion] = number

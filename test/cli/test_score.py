@@ -166,6 +166,8 @@ def test_a_frame_without_labels_is_named_and_not_counted(
         'features,',
         '  25.0% mean per frame, 50.0% on the last frame',
         'motions: as many found as true in 1 of 2 frames',
+        'identity: 0 switches (a true motion matched to another label than the one it last '
+        'had)',
         'not counted: frame 0, without labels (a motion needs two frames: the first has none)',
     ]
 
