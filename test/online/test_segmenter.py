@@ -119,6 +119,22 @@ def test_an_object_that_pauses_takes_its_number_back_when_it_moves_again(seed):
         assert number_of(results[t], frames[t], 1) == car
 
 
+def test_after_a_reset_no_track_takes_back_a_number_from_before_it():
+    # The paused object's stream twice over: after the reset its features are new tracks (the
+    # window's keys keep increasing) that remember nothing, and the numbering goes on, so the
+    # second pass gives out fresh numbers only, and still takes its own back after the pause.
+    frames = list(synthetic_stream(200, 60, (BodySpec(0.4, pause=(15, 30)),), death_rate=0.01,
+                                   seed=0))
+    seg, first = run(frames)
+    before = {int(k) for r in first for k in r.labels if k >= 0}
+    seg.reset()
+    second = [seg.process(f.stamp_ns, f.ids, f.uv) for f in frames]
+    after = {int(k) for r in second for k in r.labels if k >= 0}
+    assert after and not after & before
+    car = number_of(second[14], frames[14], 1)
+    assert number_of(second[-1], frames[-1], 1) == car  # the number still comes back
+
+
 def test_feature_order_does_not_change_the_labels_of_a_feature():
     frames = list(synthetic_stream(150, 25, (BodySpec(0.4),), seed=3))
     rng = np.random.default_rng(0)
@@ -242,6 +258,7 @@ def test_state_stays_bounded_on_a_long_stream():
         seg.process(f.stamp_ns, f.ids, f.uv)
         assert seg.frames_in_window <= 5
         assert seg._labelled_keys.size <= f.ids.size
+        assert seg._before_keys.size <= f.ids.size
 
 
 def test_warm_and_cold_agree_with_the_truth_on_a_clear_scene():
