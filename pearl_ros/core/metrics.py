@@ -158,7 +158,6 @@ def misclassification(pred: object, truth: object) -> float:
     return 1.0 - matched / pred_a.size
 
 
-
 def identities(pred: object, truth: object) -> dict[int, int]:
     """True motion -> the predicted label matched to it one-to-one, as :func:`misclassification`
     matches them; a pair that shares no point is left out (the matching pairs every label it
@@ -181,10 +180,9 @@ class LabelIdentity:
     :func:`misclassification` matches them; a true motion's *switch* is a frame where it is
     matched to another number than the last one it was matched to, however many frames ago
     (:func:`identities`; the identity switches of the CLEAR MOT metrics, Bernardin &
-    Stiefelhagen 2008). A motion
-    merged into another is unmatched while merged, not switched: if it comes out of the merge
-    under its old number, nothing is counted, under a new one, one switch. True outliers
-    (``-1``) carry no identity.
+    Stiefelhagen 2008). A motion merged into another is unmatched while merged, not switched:
+    if it comes out of the merge under its old number, nothing is counted, under a new one, one
+    switch. True outliers (``-1``) carry no identity.
 
     Attributes
     ----------
