@@ -429,6 +429,9 @@ def _build_parser() -> argparse.ArgumentParser:
     hop.add_argument('--every', type=int, default=1, metavar='N',
                      help='every Nth sequence only (with --outliers the robot-data benchmark '
                      'uses 5)')
+    hop.add_argument('--items', action='store_true',
+                     help='with --outliers: also print one line per sequence (without it, '
+                     '--csv writes them)')
     hop.add_argument(
         '--set',
         action='append',
@@ -608,6 +611,17 @@ def _hopkins155(args: argparse.Namespace) -> int:
         raise InputError(f'--jobs must be >= 1, got {args.jobs}')
     if args.outliers is not None and not 0.0 <= args.outliers < 1.0:
         raise InputError(f'--outliers must be in [0, 1), got {args.outliers}')
+    if args.outliers is not None:
+        # The outlier benchmark runs the all-frames fit and scores through the data sets'
+        # tasks: options it would not honour are refused rather than ignored.
+        given = [flag for flag, used in (('--csv', args.csv), ('--oracle', args.oracle),
+                                         ('--frames two', args.frames == 'two')) if used]
+        if given:
+            raise InputError(f'--outliers runs all frames and prints per sequence with '
+                             f'--items; it does not take {", ".join(given)}')
+    elif args.items:
+        raise InputError('--items goes with --outliers (without it, --csv writes one row per '
+                         'sequence)')
     from pearl_ros.online.config import OnlineConfig
     from pearl_ros.pipeline import settings
 

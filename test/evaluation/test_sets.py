@@ -176,11 +176,18 @@ def test_pearl_bench_hopkins_with_outliers_reports_recall(
                 if x.startswith('hopkins155_outliers'))
     assert line.split()[1] == '1'
     assert float(line.split()[5]) >= 0.0  # an outlier recall is reported, not '-'
+    assert main(['hopkins155', str(path.parents[1]), '--outliers', '0.2', '--items']) == 0
+    rows = [x for x in capsys.readouterr().out.splitlines() if x.startswith('hopkins155_outliers')]
+    assert len(rows) == 2 and rows[0].split()[1] == '1R2RC_x'  # the sequence, then the summary
 
 
 @pytest.mark.parametrize('argv, message', [
     (['suite', '--data', '/nonexistent/data'], 'data folder not found'),
     (['hopkins155', '.', '--outliers', '1.5'], '--outliers must be in [0, 1)'),
+    (['hopkins155', '.', '--outliers', '0.2', '--csv', 'x.csv'], 'does not take --csv'),
+    (['hopkins155', '.', '--outliers', '0.2', '--oracle', '--frames', 'two'],
+     'does not take --oracle, --frames two'),
+    (['hopkins155', '.', '--items'], '--items goes with --outliers'),
     (['synthetic', '--scenes', '-1'], '--scenes must be >= 0'),
     (['adelaide', '/nonexistent/pairs'], 'AdelaideRMF folder not found'),
     (['kt3dmoseg', '/nonexistent/clips', '--frames', 'two'], 'KT3DMoSeg folder not found'),
