@@ -82,6 +82,18 @@ def contingency(pred: object, truth: object) -> tuple[np.ndarray, np.ndarray, np
     return table[keep_rows][:, keep_cols], pred_labels[keep_rows], true_labels[keep_cols]
 
 
+def _matching(pred: object, truth: object) -> list[tuple[int, int, int]]:
+    """The one-to-one matching of predicted to true labels that agrees on the most points (the
+    Hungarian method on :func:`contingency`): ``(predicted label, true label, points they
+    share)`` per matched pair. The solver pairs every label it can, so a pair may share none."""
+    table, pred_labels, true_labels = contingency(pred, truth)
+    if table.size == 0:
+        return []
+    rows, cols = linear_sum_assignment(table, maximize=True)
+    return [(int(pred_labels[r]), int(true_labels[c]), int(table[r, c]))
+            for r, c in zip(rows, cols, strict=True)]
+
+
 def match_labels(pred: object, truth: object) -> dict[int, int]:
     """The one-to-one matching of predicted to true labels that agrees on the most points.
 
@@ -91,11 +103,7 @@ def match_labels(pred: object, truth: object) -> dict[int, int]:
         Predicted label -> true label, for the matched predicted labels only (at most as many as
         there are true groups). Ties are broken by the assignment solver, deterministically.
     """
-    table, pred_labels, true_labels = contingency(pred, truth)
-    if table.size == 0:
-        return {}
-    rows, cols = linear_sum_assignment(table, maximize=True)
-    return {int(pred_labels[r]): int(true_labels[c]) for r, c in zip(rows, cols, strict=True)}
+    return {label: motion for label, motion, _ in _matching(pred, truth)}
 
 
 def relabel_to_truth(pred: object, truth: object) -> np.ndarray:
@@ -149,11 +157,7 @@ def misclassification(pred: object, truth: object) -> float:
     pred_a, truth_a = _check_pair(pred, truth)
     if pred_a.size == 0:
         raise InputError('pred and truth must label at least one point')
-    table, _, _ = contingency(pred_a, truth_a)
-    matched = 0
-    if table.size:
-        rows, cols = linear_sum_assignment(table, maximize=True)
-        matched = int(table[rows, cols].sum())
+    matched = sum(shared for _, _, shared in _matching(pred_a, truth_a))
     matched += int(np.count_nonzero((pred_a == OUTLIER) & (truth_a == OUTLIER)))
     return 1.0 - matched / pred_a.size
 
@@ -162,12 +166,7 @@ def identities(pred: object, truth: object) -> dict[int, int]:
     """True motion -> the predicted label matched to it one-to-one, as :func:`misclassification`
     matches them; a pair that shares no point is left out (the matching pairs every label it
     can, and a true motion whose points are all ``-1`` has no label of its own)."""
-    table, numbers, motions = contingency(pred, truth)
-    if table.size == 0:
-        return {}
-    rows, cols = linear_sum_assignment(table, maximize=True)
-    return {int(motions[c]): int(numbers[r]) for r, c in zip(rows, cols, strict=True)
-            if table[r, c] > 0}
+    return {motion: label for label, motion, shared in _matching(pred, truth) if shared}
 
 
 class LabelIdentity:
