@@ -57,9 +57,10 @@ class OnlineConfig:
         'only; a fresh motion pays all of it): a motion is harder to start than to keep',
         low=0.0, high=1.0)
     budget_ms: float = spec(
-        20.0, 'ms, per-frame time budget of the optimiser; 0 = none. When it bites, labels '
-        'depend on the machine; the first fit (and the first after a reset) then runs over '
-        'the frames it takes, answering with its labels so far', low=0.0, high=1e6)
+        20.0, 'ms, per-frame time budget, the answer included (the optimiser stops early '
+        'enough for the work after it); 0 = none. When it bites, labels depend on the '
+        'machine; the first fit (and the first after a reset) then runs over the frames it '
+        'takes, answering with its labels so far', low=0.0, high=1e6)
     max_fitted: int = spec(
         0, 'most features the optimiser segments per frame; the others whose tracks span '
         "the fitted frames go to the model of least data cost (0 = no limit)",

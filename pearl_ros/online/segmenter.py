@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import dataclasses
 import time
+from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
@@ -58,6 +59,10 @@ COLD_BUDGETS = 8
 # world's noise level is given the static world's motion (3: a track of it under Gaussian
 # noise lies within in all but a few cases).
 STATIC_YOUNG = 3.0
+# The work of a frame after its fit (numbering the motions, labelling the young tracks) comes
+# out of the frame's budget: the fit stops that much earlier, the most this work took over the
+# last this many frames.
+TAIL_FRAMES = 10
 
 
 @dataclass(frozen=True)
@@ -127,6 +132,8 @@ class OnlineSegmenter:
         self._cold: _ColdStart | None = None  # a budgeted cold start under way
         # Each track's isolation over its last window of fits (online/isolation.py).
         self._isolation = IsolationHistory(self.online.window)
+        # Seconds from the end of each of the last TAIL_FRAMES fits to its frame's answer.
+        self._tails: deque[float] = deque(maxlen=TAIL_FRAMES)
 
     @property
     def frames_in_window(self) -> int:
@@ -240,6 +247,7 @@ class OnlineSegmenter:
                                         seen, ids.size, stamp_ns, reset, start, cameras)
             result, config = self._fit(tracks[:, pick], fitted_keys[pick], model_name,
                                        prior[pick], warm, start, cameras)
+            fitted_at = time.perf_counter()
             segments = result.labels
             if chosen is not None:
                 rest = np.ones(fitted.size, dtype=bool)
@@ -267,16 +275,18 @@ class OnlineSegmenter:
             motion_labels[newborn] = _vote(uv[seen], fitted, motion_labels[fitted], newborn,
                                            self.online.neighbours)
         else:
-            span, model_name, static_motion = 0, '', None
+            span, model_name, static_motion, fitted_at = 0, '', None, None
         return self._answer(keys, motion_labels, seen, ids.size, stamp_ns, span,
                             int(fitted.size) if span else 0, model_name, reset, warm, start,
-                            static_motion)
+                            static_motion, fitted_at)
 
     def _answer(self, keys: np.ndarray, motion_labels: np.ndarray, seen: np.ndarray, n: int,
                 stamp_ns: int, span: int, fitted: int, model_name: str, reset: bool,
-                warm: bool, start: float, static_motion: int | None = None) -> FrameResult:
+                warm: bool, start: float, static_motion: int | None = None,
+                fitted_at: float | None = None) -> FrameResult:
         """The frame's result from the motion numbers of its tracks ``keys`` (the features
-        ``seen`` of ``n``), which the next frame starts from."""
+        ``seen`` of ``n``), which the next frame starts from; ``fitted_at``: when the frame's
+        fit ended (perf_counter seconds), if it had one."""
         labels = np.full(n, OUTLIER, dtype=np.int64)
         labels[seen] = motion_labels
         labelled = np.flatnonzero(motion_labels != OUTLIER)
@@ -288,8 +298,20 @@ class OnlineSegmenter:
         remembered = remembered[np.argsort(keys[remembered], kind='stable')]
         self._before_keys, self._before_motions = keys[remembered], before[remembered]
         self._labelled_keys, self._labelled_motions = keys[by_key], motion_labels[by_key]
+        now = time.perf_counter()
+        if fitted_at is not None:
+            self._tails.append(now - fitted_at)
         return FrameResult(stamp_ns, labels, num_motions(motion_labels), span, fitted,
-                           model_name, reset, warm, time.perf_counter() - start, static_motion)
+                           model_name, reset, warm, now - start, static_motion)
+
+    def _deadline(self, start: float, budgets: float = 1.0) -> float | None:
+        """When a fit begun with the frame at ``start`` (perf_counter seconds) stops: after
+        ``budgets`` budgets, less the time the frame's answer took after the fit on the last
+        frames (their most); None without a budget."""
+        budget = self.online.budget_ms / 1e3
+        if budget <= 0:
+            return None
+        return start + budgets * budget - max(self._tails, default=0.0)
 
     def _cold_slice(self, tracks: np.ndarray, fitted_keys: np.ndarray, model_name: str,
                     keys: np.ndarray, seen: np.ndarray, n: int, stamp_ns: int, reset: bool,
@@ -298,17 +320,20 @@ class OnlineSegmenter:
         ``fitted_keys``, when none is under way) goes on for a budget's worth. The tracks it
         fits get the motions of its labelling so far (every feature -1 before its first move);
         once it is done, the next frame starts warm from its labels."""
-        budget = self.online.budget_ms / 1e3
         if self._cold is None:
             graph, noise, _ = self._neighbourhood(tracks, fitted_keys, model_name, None)
             config = self._config(model_name, noise, 'cold')
             order = np.argsort(fitted_keys, kind='stable')
-            self._cold = _ColdStart(
-                SlicedFit(tracks, config, self._rng, graph, start + COLD_BUDGETS * budget,
-                          cameras=cameras),
-                fitted_keys[order], order, model_name, tracks.shape[0])
+            last = self._deadline(start, COLD_BUDGETS)
+            assert last is not None  # a cold start is sliced only under a budget
+            self._cold = _ColdStart(SlicedFit(tracks, config, self._rng, graph, last,
+                                              cameras=cameras),
+                                    fitted_keys[order], order, model_name, tracks.shape[0])
         cold = self._cold
-        result = cold.fit.advance(start + budget)
+        deadline = self._deadline(start)
+        assert deadline is not None
+        result = cold.fit.advance(deadline)
+        fitted_at = time.perf_counter()
         segments = cold.fit.labels
         if segments is None or not np.any(segments != OUTLIER):
             return self._answer(keys, np.full(keys.size, OUTLIER, dtype=np.int64), seen, n,
@@ -321,7 +346,8 @@ class OnlineSegmenter:
         numbers = self._identify(segments[cold.order], prior, cold.keys)
         motion_labels = lookup(cold.keys, numbers, keys, OUTLIER)
         return self._answer(keys, motion_labels, seen, n, stamp_ns, cold.frames,
-                            int(cold.keys.size), cold.model, reset, False, start)
+                            int(cold.keys.size), cold.model, reset, False, start,
+                            fitted_at=fitted_at)
 
     def _model_name(self, span: int) -> str:
         if self.config.model in _TWO_VIEW:
@@ -347,8 +373,7 @@ class OnlineSegmenter:
             previous = self._graph[1]
         graph, noise, suspects = self._neighbourhood(tracks, keys, model_name, previous)
         init = None
-        budget = self.online.budget_ms
-        deadline = start + budget / 1e3 if budget > 0 else None
+        deadline = self._deadline(start)
         if warm:
             config = self._config(model_name, noise, 'warm')
             _, init = np.unique(prior, return_inverse=True)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import time
 
 import numpy as np
 import pytest
@@ -421,6 +422,32 @@ def test_a_budgeted_cold_start_answers_its_labels_so_far_until_its_fit_is_done(m
     assert all(r.warm for r in results[done + 1:])
     assert results[-1].motions == 2
     assert misclassification(results[-1].labels, frames[-1].truth) < 0.05
+
+
+def test_the_work_after_the_fit_comes_out_of_the_frames_budget(monkeypatch):
+    # The budget bounds the frame, its answer included: where labelling the young tracks
+    # takes 30 ms, a 50 ms budget leaves the fit at most 20 ms from when it starts.
+    from pearl_ros.online import segmenter as module
+
+    real_fit, real_young = module.fit, module._nearest_subspace
+    room = []
+
+    def timed_fit(tracks, config, rng, **kwargs):
+        room.append(kwargs['deadline'] - time.perf_counter())
+        return real_fit(tracks, config, rng, **kwargs)
+
+    def slow_young(*args, **kwargs):
+        time.sleep(0.030)
+        return real_young(*args, **kwargs)
+
+    monkeypatch.setattr(module, 'fit', timed_fit)
+    monkeypatch.setattr(module, '_nearest_subspace', slow_young)
+    frames = list(synthetic_stream(150, 12, (BodySpec(0.3),), seed=1))
+    seg = OnlineSegmenter(online=dataclasses.replace(UNTIMED, budget_ms=50.0, warm_start=True))
+    run(frames, seg)
+    # Warm fits after one with young tracks labelled: the 30 ms are set aside.
+    assert len(room) > 4
+    assert max(room[2:]) <= 0.020
 
 
 def test_a_reset_drops_a_cold_start_under_way():
