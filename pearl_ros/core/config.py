@@ -153,6 +153,12 @@ class SolverSettings:
         True, 'over three frames or more, the points around isolated ones are also joined by '
         'the edges a Delaunay triangulation without the isolated points has, so that '
         'outlier tracks do not cut the ties between the points of a body')
+    redraw_isolated: bool = spec(
+        True, 'batch fits over three frames or more: once the isolated points are known, '
+        "each point's patch is drawn again from its nearest image neighbours among the "
+        "others, so that outlier tracks do not take the place of a body's points in their "
+        "neighbours' patches (the online segmenter keeps its patches: the isolated points "
+        'change from frame to frame)')
     static_contrast: float = spec(
         1.5, 'with known cameras: neighbours whose static-world residuals differ by d noise '
         'scales keep exp(-(d / static_contrast)^2) of their tie (a point that moves as the '

@@ -117,6 +117,25 @@ class Neighbourhood:
         bridged: np.ndarray = pairs[inside]
         return bridged
 
+    def without(self, tracks: np.ndarray, left: np.ndarray,
+                settings: SolverSettings | None = None) -> Neighbourhood:
+        """This neighbourhood with every point's patch drawn from its nearest image
+        neighbours among the points not ``left`` (N,) bool, and every miss measured again."""
+        tracks = np.asarray(tracks, dtype=np.float64)
+        settings = settings or default_solver()
+        k = self.neighbours.shape[1]
+        others = np.flatnonzero(~left)
+        anchor = tracks[-1]
+        _, idx = cKDTree(anchor[others]).query(anchor, k=k + 1)
+        idx = others[idx]
+        not_self = idx != np.arange(anchor.shape[0])[:, None]
+        keep = not_self & (np.cumsum(not_self, axis=1) <= k)
+        neighbours = idx[keep].reshape(anchor.shape[0], k).astype(np.int64)
+        data = get_model('affine').data(tracks)
+        subspaces = local_subspaces(data, neighbours, settings)
+        return Neighbourhood(self.edges, neighbours, subspace_misses(data, subspaces, self.edges),
+                             self.ids, subspaces, self.triangulation)
+
     def nearest_miss(self) -> np.ndarray:
         """Each point's least miss over its edges ``(N,)``, pixels (inf for a point with none):
         how far it is from moving like its most alike neighbour. Read-only, worked out once

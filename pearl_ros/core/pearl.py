@@ -377,6 +377,7 @@ def fit(
     suspects: np.ndarray | None = None,
     init_label_share: float = 1.0,
     cameras: np.ndarray | None = None,
+    redraw: bool = True,
 ) -> PearlResult:
     """Segment tracked points into rigid motions; the number of motions is found, not given.
 
@@ -420,6 +421,10 @@ def fit(
         whose parameters are known (:mod:`pearl_ros.core.models.ego`), and neighbours that it
         explains unequally are tied less (``SolverSettings.static_contrast``). The static
         world comes out as one of the models; a result's params are all NaN for it.
+    redraw : bool
+        False keeps every point's patch as ``graph`` drew it, isolated points among them
+        (``SolverSettings.redraw_isolated``: a stream's isolated points change from frame to
+        frame, and its patches with them would).
 
     Returns
     -------
@@ -427,7 +432,7 @@ def fit(
     """
     return _run(_steps(tracks, config or PearlConfig(), np.random.default_rng(rng), init,
                        deadline, init_cost, propose, graph, suspects, init_label_share,
-                       cameras))
+                       cameras, redraw))
 
 
 def _run(steps: Generator[object, None, _T]) -> _T:
@@ -474,9 +479,9 @@ class SlicedFit:
     def __init__(self, tracks: np.ndarray, config: PearlConfig | None = None,
                  rng: np.random.Generator | int | None = None,
                  graph: Neighbourhood | None = None, deadline: float | None = None,
-                 cameras: np.ndarray | None = None) -> None:
+                 cameras: np.ndarray | None = None, redraw: bool = True) -> None:
         self._steps = _steps(tracks, config or PearlConfig(), np.random.default_rng(rng), None,
-                             deadline, 0.0, True, graph, cameras=cameras)
+                             deadline, 0.0, True, graph, cameras=cameras, redraw=redraw)
         self.result: PearlResult | None = None
         self.steps_run = 0
         self._search: _Search | None = None
@@ -514,13 +519,13 @@ class SlicedFit:
 def _steps(tracks: np.ndarray, config: PearlConfig, rng: np.random.Generator,
            init: np.ndarray | None, deadline: float | None, init_cost: float, propose: bool,
            graph: Neighbourhood | None, suspects: np.ndarray | None = None,
-           init_share: float = 1.0, cameras: np.ndarray | None = None
+           init_share: float = 1.0, cameras: np.ndarray | None = None, redraw: bool = True
            ) -> Generator[_Search | None, None, PearlResult]:
     """:func:`fit`'s steps: yields the search once set up, then None before each step
     (:class:`SlicedFit`); returns the result."""
     timings = {'setup': 0.0, 'propose': 0.0, 'expand': 0.0, 'refit': 0.0}
     with _timed(timings, 'setup'):
-        setting = _setting(tracks, config, rng, graph, suspects, cameras)
+        setting = _setting(tracks, config, rng, graph, suspects, cameras, redraw)
     if not init_cost >= 0:
         raise InputError(f'init_cost must be >= 0, got {init_cost!r}')
     if not 0.0 <= init_share <= 1.0:
@@ -729,7 +734,7 @@ def _outlier_cost(threshold: float, scale: float, dof: float, floor: float) -> f
 
 def _setting(tracks: np.ndarray, config: PearlConfig, rng: np.random.Generator,
              graph: Neighbourhood | None = None, also: np.ndarray | None = None,
-             cameras: np.ndarray | None = None) -> _Setting:
+             cameras: np.ndarray | None = None, redraw: bool = True) -> _Setting:
     solver = config.solver
     model = get_model(config.model, solver)
     if cameras is not None:
@@ -762,6 +767,10 @@ def _setting(tracks: np.ndarray, config: PearlConfig, rng: np.random.Generator,
         uniform = dof * (2.0 * math.log(max(span, floor) / floor) - math.log(2.0 * math.pi))
         costs[isolated] = min(outlier_cost, max(uniform, 0.0))
         kept = ~(isolated[edges[:, 0]] | isolated[edges[:, 1]])
+        if (redraw and solver.redraw_isolated and tracks.shape[0] >= BRIDGE_FRAMES
+                and isolated.any() and np.count_nonzero(~isolated) > neighbours.shape[1]):
+            graph = graph.without(tracks, isolated, solver)
+            neighbours, misses = graph.neighbours, graph.misses
         if solver.bridge_isolated and tracks.shape[0] >= BRIDGE_FRAMES and isolated.any():
             bridges, bridge_misses = graph.bridges(tracks, isolated, solver)
             edges = np.concatenate([edges, bridges])

@@ -327,7 +327,7 @@ class OnlineSegmenter:
             last = self._deadline(start, COLD_BUDGETS)
             assert last is not None  # a cold start is sliced only under a budget
             self._cold = _ColdStart(SlicedFit(tracks, config, self._rng, graph, last,
-                                              cameras=cameras),
+                                              cameras=cameras, redraw=False),
                                     fitted_keys[order], order, model_name, tracks.shape[0])
         cold = self._cold
         deadline = self._deadline(start)
@@ -387,7 +387,8 @@ class OnlineSegmenter:
         result = fit(tracks, config, self._rng, init=init, deadline=deadline,
                      init_cost=self.online.temporal_cost if warm else 0.0, propose=propose,
                      graph=graph, suspects=suspects,
-                     init_label_share=self.online.continued_label_cost, cameras=cameras)
+                     init_label_share=self.online.continued_label_cost, cameras=cameras,
+                     redraw=False)
         per_feature = result.energy / max(tracks.shape[1], 1)
         if propose:
             self._quiet, self._energy_ref = 0, per_feature

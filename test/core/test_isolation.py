@@ -189,6 +189,53 @@ def test_bridges_of_edges_kept_from_an_earlier_frame_triangulate_the_frame_given
     assert {tuple(edge) for edge in bridges.tolist()} == expected
 
 
+def test_patches_drawn_again_take_their_points_from_those_not_isolated(affine_scene):
+    tracks, _ = _walk_scene(affine_scene, seed=2)
+    graph = neighbourhood(tracks)
+    left = np.random.default_rng(4).random(tracks.shape[1]) < 0.25
+    again = graph.without(tracks, left)
+    # Oracle: each point's k nearest image neighbours among the points not left out, by
+    # sorting every distance in the last frame.
+    last = tracks[-1]
+    k = graph.neighbours.shape[1]
+    others = np.flatnonzero(~left)
+    for p in range(tracks.shape[1]):
+        candidates = others[others != p]
+        distance = np.linalg.norm(last[candidates] - last[p], axis=1)
+        assert set(again.neighbours[p].tolist()) == set(candidates[np.argsort(distance)[:k]])
+    assert not left[again.neighbours].any()
+    np.testing.assert_array_equal(again.edges, graph.edges)
+    np.testing.assert_allclose(again.misses, patch_residuals(get_model('affine').data(tracks),
+                                                             graph.edges, again.neighbours))
+    assert not np.allclose(again.misses, graph.misses)
+
+
+def test_batch_fits_draw_patches_again_and_the_online_segmenter_keeps_its_own(affine_scene):
+    from pearl_ros.online.config import OnlineConfig
+    from pearl_ros.online.segmenter import OnlineSegmenter
+
+    tracks, truth = _walk_scene(affine_scene, seed=3)
+    drawn = pearl._setting(tracks, PearlConfig(), np.random.default_rng(0))
+    kept = pearl._setting(tracks, PearlConfig(solver=SolverSettings(redraw_isolated=False)),
+                          np.random.default_rng(0))
+    isolated = drawn.outlier_cost < drawn.outlier_cost.max()
+    walks = truth == OUTLIER
+    assert isolated[walks].any()
+    assert not isolated[drawn.neighbours].any() and isolated[kept.neighbours].any()
+    assert not np.allclose(drawn.weights[:kept.edges.shape[0]],
+                           kept.weights[:kept.edges.shape[0]])
+    # Frame by frame the same tracks give the same labels whatever the setting: a stream's
+    # isolated points change from frame to frame, and its patches stay as drawn.
+    ids = np.arange(tracks.shape[1])
+    labels = []
+    for redraw in (True, False):
+        config = PearlConfig(solver=SolverSettings(redraw_isolated=redraw))
+        segmenter = OnlineSegmenter(config, OnlineConfig(budget_ms=0.0, seed=0))
+        labels.append([segmenter.process(1_000_000_000 + 33_000_000 * t, ids, tracks[t]).labels
+                       for t in range(tracks.shape[0])])
+    np.testing.assert_array_equal(np.array(labels[0]), np.array(labels[1]))
+
+
 def test_bridges_join_the_points_around_outlier_walks_and_leave_the_other_ties_as_they_were(
         affine_scene):
     tracks, truth = _walk_scene(affine_scene, seed=3)
@@ -219,18 +266,20 @@ def test_bridges_join_the_points_around_outlier_walks_and_leave_the_other_ties_a
             == neighbourhood(two, settings=config.solver).edges.shape)
 
 
-def test_bridging_lowers_the_error_of_true_points_among_outlier_walks_on_hopkins155(
-        hopkins_root):
+@pytest.mark.parametrize('setting', ['bridge_isolated', 'redraw_isolated'])
+def test_bridges_and_patches_drawn_again_lower_the_error_of_true_points_among_walks(
+        hopkins_root, setting):
     # Real data with ground truth: every fifth sequence, 20% random-walk outlier tracks (the
-    # robot-data benchmark's set), true points scored on their own.
+    # robot-data benchmark's set), true points scored on their own; each of the two with the
+    # other at its default.
     names = sequence_names(hopkins_root)[::5]
     errors: dict[bool, list[float]] = {True: [], False: []}
     for index, name in enumerate(names):
         sequence = load_sequence(hopkins_root, name)
         tracks, truth = add_outlier_tracks(sequence.tracks, sequence.labels, 0.2, rng=index)
         true_points = truth != OUTLIER
-        for bridge in (True, False):
-            config = PearlConfig(solver=SolverSettings(bridge_isolated=bridge))
+        for on in (True, False):
+            config = PearlConfig(solver=SolverSettings(**{setting: on}))
             labels = pearl.fit(tracks, config, rng=index).labels
-            errors[bridge].append(misclassification(labels[true_points], truth[true_points]))
+            errors[on].append(misclassification(labels[true_points], truth[true_points]))
     assert np.mean(errors[True]) < np.mean(errors[False]) - 0.005
