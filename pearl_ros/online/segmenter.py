@@ -259,11 +259,11 @@ class OnlineSegmenter:
             static = _static_model(result) if cameras is not None else None
             members = np.flatnonzero(segments == static) if static is not None else fitted[:0]
             static_motion = int(motion_labels[fitted[members[0]]]) if members.size else None
-            young = np.setdiff1d(np.arange(keys.size), fitted)
+            young = np.flatnonzero(age < span)  # the tracks not fitted, in order
             solver = self.config.solver
-            tracked = young[age[young] >= solver.young_min_age] \
-                if model_name not in _TWO_VIEW else young[:0]
-            newborn = np.setdiff1d(young, tracked)
+            grown = age[young] >= solver.young_min_age if model_name not in _TWO_VIEW \
+                else np.zeros(young.size, dtype=bool)
+            tracked, newborn = young[grown], young[~grown]
             known = None
             if (cameras is not None and static is not None and static_motion is not None
                     and chosen is None):

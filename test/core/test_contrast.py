@@ -138,3 +138,19 @@ def test_long_edges_across_a_gap_stretch_only_within_one_body(gap_scene, same_bo
         # as well as each fits its own (here one edge of nine, at 1.98 times): most do not.
         assert np.mean(stretch[across] > 1.0) <= 0.2
     assert np.all(long_edge_stretch(tracks, edges, neighbours, 1.0) == 1.0)
+
+
+@pytest.mark.parametrize('size', [4, 11, 30])
+def test_a_groups_spread_is_its_rms_residual_to_its_own_best_affine_subspace(size):
+    # Oracle: each group's best 3-D affine subspace from an SVD of its centred rows, and the
+    # RMS of the residuals; groups narrower and wider than the rows' dimension (20).
+    from pearl_ros.core.contrast import _spread
+
+    rng = np.random.default_rng(size)
+    rows = rng.normal(size=(50, 20)) * rng.uniform(0.1, 10.0, 20)
+    groups = np.stack([rng.choice(50, size, replace=False) for _ in range(7)])
+    for group, spread in zip(groups, _spread(rows, groups, 3), strict=True):
+        centred = rows[group] - rows[group].mean(axis=0)
+        _, _, vt = np.linalg.svd(centred, full_matrices=False)
+        residual = centred - centred @ vt[:3].T @ vt[:3]
+        assert spread == pytest.approx(np.sqrt(np.sum(residual**2) / size), rel=1e-9, abs=1e-12)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from scipy.spatial import Delaunay
 
 from pearl_ros.core.config import SolverSettings
 from pearl_ros.core.contrast import patch_residuals
@@ -40,6 +41,19 @@ def test_delaunay_edges_are_unique_sorted_pairs_linking_every_point():
     assert set(edges.ravel()) == set(range(40))
     # Euler: a planar triangulation of n points has at most 3n - 6 edges.
     assert len(edges) <= 3 * 40 - 6
+
+
+@pytest.mark.parametrize('seed', range(4))
+def test_delaunay_edges_are_the_sides_of_the_triangles_in_order(seed):
+    # Oracle: every side of every triangle scipy returns, each pair once, sorted by (i, j);
+    # coincident points (seed 3), which qhull drops, join nothing.
+    rng = np.random.default_rng(seed)
+    points = rng.uniform(0, 640, (int(rng.integers(3, 500)), 2))
+    if seed == 3:
+        points[1::7] = points[0]
+    sides = sorted({(min(i, j), max(i, j)) for a, b, c in Delaunay(points).simplices.tolist()
+                    for i, j in ((a, b), (b, c), (a, c))})
+    assert delaunay_edges(points).tolist() == [list(side) for side in sides]
 
 
 def test_collinear_points_fall_back_to_a_chain():
