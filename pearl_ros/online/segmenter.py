@@ -134,6 +134,7 @@ class OnlineSegmenter:
         self._isolation = IsolationHistory(self.online.window)
         # Seconds from the end of each of the last TAIL_FRAMES fits to its frame's answer.
         self._tails: deque[float] = deque(maxlen=TAIL_FRAMES)
+        self._budget_from = 0.0  # perf_counter seconds: when this frame's budget began
 
     @property
     def frames_in_window(self) -> int:
@@ -182,7 +183,7 @@ class OnlineSegmenter:
         return self._window.set_camera(int(stamp_ns), checked, int(tolerance_ns))
 
     def process(self, stamp_ns: int, ids: np.ndarray, uv: np.ndarray,
-                camera: np.ndarray | None = None) -> FrameResult:
+                camera: np.ndarray | None = None, arrived: float | None = None) -> FrameResult:
         """Label one frame.
 
         Parameters
@@ -198,6 +199,10 @@ class OnlineSegmenter:
             where ``CAMERA_FRAMES`` frames or more have theirs, the multi-frame fits take the
             static world as a motion of known parameters (:func:`pearl_ros.core.pearl.fit`'s
             ``cameras``); two-view fits do not use them.
+        arrived : float, optional
+            When the frame arrived (a :func:`time.perf_counter` value, such as a node's
+            subscription callback takes): the budget counts from then, so that a frame that
+            waited for the one before it leaves the optimiser less. Default: the call.
 
         Raises
         ------
@@ -206,6 +211,7 @@ class OnlineSegmenter:
             one. The segmenter's state is then unchanged.
         """
         start = time.perf_counter()
+        self._budget_from = start if arrived is None else min(float(arrived), start)
         stamp_ns, ids, uv = _check_frame(stamp_ns, ids, uv)
         camera = _check_camera(camera)
         last = self._window.last_stamp
@@ -246,7 +252,7 @@ class OnlineSegmenter:
                 return self._cold_slice(tracks[:, pick], fitted_keys[pick], model_name, keys,
                                         seen, ids.size, stamp_ns, reset, start, cameras)
             result, config = self._fit(tracks[:, pick], fitted_keys[pick], model_name,
-                                       prior[pick], warm, start, cameras)
+                                       prior[pick], warm, cameras)
             fitted_at = time.perf_counter()
             segments = result.labels
             if chosen is not None:
@@ -304,14 +310,14 @@ class OnlineSegmenter:
         return FrameResult(stamp_ns, labels, num_motions(motion_labels), span, fitted,
                            model_name, reset, warm, now - start, static_motion)
 
-    def _deadline(self, start: float, budgets: float = 1.0) -> float | None:
-        """When a fit begun with the frame at ``start`` (perf_counter seconds) stops: after
-        ``budgets`` budgets, less the time the frame's answer took after the fit on the last
-        frames (their most); None without a budget."""
+    def _deadline(self, budgets: float = 1.0) -> float | None:
+        """When a fit begun with this frame stops: ``budgets`` budgets after the frame arrived
+        (:meth:`process`'s ``arrived``), less the time the frame's answer took after the fit on
+        the last frames (their most); None without a budget."""
         budget = self.online.budget_ms / 1e3
         if budget <= 0:
             return None
-        return start + budgets * budget - max(self._tails, default=0.0)
+        return self._budget_from + budgets * budget - max(self._tails, default=0.0)
 
     def _cold_slice(self, tracks: np.ndarray, fitted_keys: np.ndarray, model_name: str,
                     keys: np.ndarray, seen: np.ndarray, n: int, stamp_ns: int, reset: bool,
@@ -324,13 +330,13 @@ class OnlineSegmenter:
             graph, noise, _ = self._neighbourhood(tracks, fitted_keys, model_name, None)
             config = self._config(model_name, noise, 'cold')
             order = np.argsort(fitted_keys, kind='stable')
-            last = self._deadline(start, COLD_BUDGETS)
+            last = self._deadline(COLD_BUDGETS)
             assert last is not None  # a cold start is sliced only under a budget
             self._cold = _ColdStart(SlicedFit(tracks, config, self._rng, graph, last,
                                               cameras=cameras, redraw=False),
                                     fitted_keys[order], order, model_name, tracks.shape[0])
         cold = self._cold
-        deadline = self._deadline(start)
+        deadline = self._deadline()
         assert deadline is not None
         result = cold.fit.advance(deadline)
         fitted_at = time.perf_counter()
@@ -355,7 +361,7 @@ class OnlineSegmenter:
         return self.online.two_view_model if span == 2 else self.config.model
 
     def _fit(self, tracks: np.ndarray, keys: np.ndarray, model_name: str, prior: np.ndarray,
-             warm: bool, start: float, cameras: np.ndarray | None = None
+             warm: bool, cameras: np.ndarray | None = None
              ) -> tuple[PearlResult, PearlConfig]:
         """Segment ``tracks`` (of the tracks ``keys``; their frames' ``cameras`` where known);
         returns the fit (labels 0..K-1 per track, -1 outliers) and the configuration it ran
@@ -373,7 +379,7 @@ class OnlineSegmenter:
             previous = self._graph[1]
         graph, noise, suspects = self._neighbourhood(tracks, keys, model_name, previous)
         init = None
-        deadline = self._deadline(start)
+        deadline = self._deadline()
         if warm:
             config = self._config(model_name, noise, 'warm')
             _, init = np.unique(prior, return_inverse=True)

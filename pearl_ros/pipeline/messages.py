@@ -308,7 +308,8 @@ class MessagePipeline:
             return Skipped.because('empty cloud: no features', malformed=False)
         return ids, uv
 
-    def process(self, msg: Any, header: Any = None) -> Labelled | Skipped:
+    def process(self, msg: Any, header: Any = None,
+                arrived: float | None = None) -> Labelled | Skipped:
         """Segment one feature message.
 
         Parameters
@@ -317,6 +318,9 @@ class MessagePipeline:
             An rclpy or rosbags message.
         header : std_msgs/msg/Header, optional
             Header of both outputs; default ``msg.header``.
+        arrived : float, optional
+            When the message arrived (:func:`time.perf_counter`): the segmenter's time budget
+            counts from then (:meth:`OnlineSegmenter.process`); default: now.
 
         Returns
         -------
@@ -338,7 +342,7 @@ class MessagePipeline:
             pixels = self._lens.undistort(pixels)
         try:
             camera = self._camera(stamp) if node.pose_topic else None
-            result = self._segmenter.process(stamp, ids[segmented], pixels, camera)
+            result = self._segmenter.process(stamp, ids[segmented], pixels, camera, arrived)
             self.frames_with_camera += camera is not None
         except InputError as err:  # a stamp equal to the last: the window is unchanged
             return Skipped.because(err, malformed=False)

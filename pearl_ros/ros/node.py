@@ -458,7 +458,8 @@ class PearlNode(Node):
         msg = self._pipeline.deserialize(raw, self._type_name)
         with self._pipeline_lock:
             self._take_poses()
-            out = msg if isinstance(msg, Skipped) else self._pipeline.process(msg)
+            out = msg if isinstance(msg, Skipped) else self._pipeline.process(msg,
+                                                                              arrived=arrival)
             with self._lock:
                 self.stats.window = self._pipeline.frames_in_window
                 self.stats.frames_with_camera = self._pipeline.frames_with_camera

@@ -450,6 +450,27 @@ def test_the_work_after_the_fit_comes_out_of_the_frames_budget(monkeypatch):
     assert max(room[2:]) <= 0.020
 
 
+def test_the_budget_counts_from_when_the_frame_arrived(monkeypatch):
+    # A frame that waited 30 ms for the worker (a node's callback took it then) leaves the fit
+    # at most 20 ms of a 50 ms budget.
+    from pearl_ros.online import segmenter as module
+
+    real_fit = module.fit
+    room = []
+
+    def timed_fit(tracks, config, rng, **kwargs):
+        room.append(kwargs['deadline'] - time.perf_counter())
+        return real_fit(tracks, config, rng, **kwargs)
+
+    monkeypatch.setattr(module, 'fit', timed_fit)
+    frames = list(synthetic_stream(150, 12, (BodySpec(0.3),), seed=1))
+    seg = OnlineSegmenter(online=dataclasses.replace(UNTIMED, budget_ms=50.0))
+    for frame in frames:
+        seg.process(frame.stamp_ns, frame.ids, frame.uv, arrived=time.perf_counter() - 0.030)
+    assert len(room) > 4
+    assert max(room) <= 0.020
+
+
 def test_a_reset_drops_a_cold_start_under_way():
     frames = list(synthetic_stream(150, 12, (BodySpec(0.4),), seed=3))
     seg = OnlineSegmenter(online=dataclasses.replace(UNTIMED, budget_ms=1e-6))

@@ -340,9 +340,9 @@ def test_a_lens_with_distortion_is_undone_before_the_features_are_segmented(tmp_
     given = []
     process = OnlineSegmenter.process
 
-    def spy(self, stamp_ns, ids, uv, camera=None):
+    def spy(self, stamp_ns, ids, uv, camera=None, arrived=None):
         given.append(np.array(uv))
-        return process(self, stamp_ns, ids, uv, camera)
+        return process(self, stamp_ns, ids, uv, camera, arrived)
 
     monkeypatch.setattr(OnlineSegmenter, 'process', spy)
     tracks, truth, _ = static_scene(frames=20, seed=7)
@@ -411,9 +411,9 @@ def test_camera_info_without_poses_undistorts_the_features_alone(tmp_path, monke
     given = []
     process = OnlineSegmenter.process
 
-    def spy(self, stamp_ns, ids, uv, camera=None):
+    def spy(self, stamp_ns, ids, uv, camera=None, arrived=None):
         given.append((np.array(uv), camera))
-        return process(self, stamp_ns, ids, uv, camera)
+        return process(self, stamp_ns, ids, uv, camera, arrived)
 
     monkeypatch.setattr(OnlineSegmenter, 'process', spy)
     tracks, _, _ = static_scene(frames=12, seed=7)

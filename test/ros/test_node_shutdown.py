@@ -55,9 +55,9 @@ def test_a_context_shut_down_while_a_frame_is_published_ends_the_callback_quietl
     process = pipeline.process
     calls: list[int] = []
 
-    def shut_down_then_process(msg: Any, header: Any = None) -> Any:
+    def shut_down_then_process(msg: Any, header: Any = None, arrived: Any = None) -> Any:
         calls.append(1)
-        return _shut_down_first(ros, process)(msg, header)
+        return _shut_down_first(ros, process)(msg, header, arrived)
 
     pipeline.process = shut_down_then_process  # type: ignore[method-assign]
     probe.publisher.publish(vins_cloud(FRAMES[1].stamp_ns, FRAMES[1].ids, FRAMES[1].uv))
