@@ -23,6 +23,7 @@ Numbers are given out again only that way.
 from __future__ import annotations
 
 import dataclasses
+import math
 import time
 from collections import deque
 from dataclasses import dataclass
@@ -207,11 +208,11 @@ class OnlineSegmenter:
         Raises
         ------
         InputError
-            On mismatched shapes, non-integer or duplicate ids, or a stamp equal to the previous
-            one. The segmenter's state is then unchanged.
+            On mismatched shapes, non-integer or duplicate ids, a stamp equal to the previous
+            one, or an ``arrived`` that is not finite. The segmenter's state is then unchanged.
         """
         start = time.perf_counter()
-        self._budget_from = start if arrived is None else min(float(arrived), start)
+        self._budget_from = start if arrived is None else min(_check_arrived(arrived), start)
         stamp_ns, ids, uv = _check_frame(stamp_ns, ids, uv)
         camera = _check_camera(camera)
         last = self._window.last_stamp
@@ -515,6 +516,17 @@ class _ColdStart:
     order: np.ndarray
     model: str
     frames: int
+
+
+def _check_arrived(arrived: object) -> float:
+    """``arrived`` as a float, or InputError unless it is a finite time."""
+    try:
+        value = float(arrived)  # type: ignore[arg-type]
+    except (TypeError, ValueError):
+        value = math.nan
+    if not math.isfinite(value):
+        raise InputError(f'arrived must be a finite time.perf_counter() value, got {arrived!r}')
+    return value
 
 
 def _check_frame(stamp_ns: int, ids: np.ndarray, uv: np.ndarray

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import math
 import time
 
 import numpy as np
@@ -469,6 +470,15 @@ def test_the_budget_counts_from_when_the_frame_arrived(monkeypatch):
         seg.process(frame.stamp_ns, frame.ids, frame.uv, arrived=time.perf_counter() - 0.030)
     assert len(room) > 4
     assert max(room) <= 0.020
+
+
+@pytest.mark.parametrize('arrived', [math.nan, math.inf, 'now'])
+def test_an_arrival_time_that_is_no_time_is_refused(arrived):
+    frame = next(iter(synthetic_stream(50, 1, (BodySpec(0.3),), seed=1)))
+    seg = OnlineSegmenter(online=UNTIMED)
+    with pytest.raises(InputError, match='arrived must be a finite'):
+        seg.process(frame.stamp_ns, frame.ids, frame.uv, arrived=arrived)
+    assert seg.frames_in_window == 0
 
 
 def test_a_reset_drops_a_cold_start_under_way():
