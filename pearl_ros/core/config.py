@@ -159,6 +159,12 @@ class SolverSettings:
         "others, so that outlier tracks do not take the place of a body's points in their "
         "neighbours' patches (the online segmenter keeps its patches: the isolated points "
         'change from frame to frame)')
+    local_ceiling: float = spec(
+        4.0, "batch two-view fits (fundamental matrices, homographies): a model's noise level "
+        "is at most this many times its members' local noise, the median of their nearest "
+        'misses (or the noise scale, or the pair unit, where larger), so that one model '
+        'cannot take two structures, or a structure and the mismatches around it (4: the '
+        'widest proposal level); 0 = off', low=0.0, high=1e6)
     static_contrast: float = spec(
         1.5, 'with known cameras: neighbours whose static-world residuals differ by d noise '
         'scales keep exp(-(d / static_contrast)^2) of their tie (a point that moves as the '

@@ -136,13 +136,19 @@ def edge_weights(residuals: np.ndarray, scale: float, smoothness: float, separat
     the edges whose misses the quantile is taken over (the others touch an isolated point, and
     the misses of gross outliers would otherwise set the unit of every edge).
     """
-    sample = residuals if counted is None else residuals[counted]
-    unit: float | np.ndarray = (max(scale, float(np.quantile(sample, quantile)))
-                                if sample.size else scale)
+    unit: float | np.ndarray = pair_unit(residuals, scale, quantile, counted)
     if stretch is not None:
         unit = unit * stretch
     alike = np.exp(-np.square(residuals / (contrast * unit)))
     return smoothness * alike - separation * (1.0 - alike)
+
+
+def pair_unit(residuals: np.ndarray, scale: float, quantile: float,
+              counted: np.ndarray | None = None) -> float:
+    """The unit of :func:`edge_weights`: the noise level ``scale``, or the ``quantile`` quantile
+    of the misses ``residuals`` (of the edges ``counted``, if given) where that is larger."""
+    sample = residuals if counted is None else residuals[counted]
+    return max(scale, float(np.quantile(sample, quantile))) if sample.size else scale
 
 
 def long_edge_stretch(tracks: np.ndarray, edges: np.ndarray, neighbours: np.ndarray,

@@ -27,7 +27,7 @@ from typing import TypeVar
 import numpy as np
 
 from pearl_ros.core.config import PearlConfig, SolverSettings, default_solver
-from pearl_ros.core.contrast import edge_weights, long_edge_stretch
+from pearl_ros.core.contrast import edge_weights, long_edge_stretch, pair_unit
 from pearl_ros.core.energy import Problem, energy
 from pearl_ros.core.errors import InputError
 from pearl_ros.core.expansion import Expansions, expansion_move
@@ -46,6 +46,8 @@ OUTLIER_ROW = 0  # the row of the cost table (the optimiser's label) of the outl
 # often isolated there, and bridges drawn across them tie the bodies around it together
 # (Hopkins155 two frames 5.94 -> 6.42%, docs/experiments.md).
 BRIDGE_FRAMES = 3
+# Model families between two views, which SolverSettings.local_ceiling caps.
+TWO_VIEW = ('fundamental', 'homography')
 # The quantile of the points' least pair misses that isolation is measured in: low, so that it
 # is a true point's even where most points are mismatches (AdelaideRMF's `game`, 73%, where the
 # lower quartile was a mismatch's). The misses themselves need true neighbours: on synthetic
@@ -221,6 +223,17 @@ class _Setting:
     dof: float  # E[r^2] / sigma^2 of the model's residuals
     outlier_cost: np.ndarray  # (N,) the outlier label's data cost of each point
     label_cost: float
+    # Batch two-view fits: each point's local noise (its nearest miss, px) and the least
+    # reference of a model's ceiling (noise scale or pair unit), SolverSettings.local_ceiling.
+    local: np.ndarray | None = None
+    reference: float = 0.0
+
+    def cap(self, members: np.ndarray) -> float:
+        """The most noise level a model of ``members`` may claim, px."""
+        if self.local is None or members.size == 0:
+            return self.ceiling
+        local = max(float(np.median(self.local[members])), self.reference)
+        return min(self.ceiling, self.solver.local_ceiling * local)
 
     def unary(self, residuals: np.ndarray, sigmas: np.ndarray) -> np.ndarray:
         """Data costs ``(1 + K, N)`` from model residuals ``(K, N)`` and noise levels ``(K,)``:
@@ -377,7 +390,7 @@ def fit(
     suspects: np.ndarray | None = None,
     init_label_share: float = 1.0,
     cameras: np.ndarray | None = None,
-    redraw: bool = True,
+    batch: bool = True,
 ) -> PearlResult:
     """Segment tracked points into rigid motions; the number of motions is found, not given.
 
@@ -421,10 +434,11 @@ def fit(
         whose parameters are known (:mod:`pearl_ros.core.models.ego`), and neighbours that it
         explains unequally are tied less (``SolverSettings.static_contrast``). The static
         world comes out as one of the models; a result's params are all NaN for it.
-    redraw : bool
-        False keeps every point's patch as ``graph`` drew it, isolated points among them
-        (``SolverSettings.redraw_isolated``: a stream's isolated points change from frame to
-        frame, and its patches with them would).
+    batch : bool
+        False for the online segmenter's fits: every point's patch stays as ``graph`` drew it,
+        isolated points among them (``SolverSettings.redraw_isolated``: a stream's isolated
+        points change from frame to frame, and its patches with them would), and two-view
+        models claim any noise level (``SolverSettings.local_ceiling``).
 
     Returns
     -------
@@ -432,7 +446,7 @@ def fit(
     """
     return _run(_steps(tracks, config or PearlConfig(), np.random.default_rng(rng), init,
                        deadline, init_cost, propose, graph, suspects, init_label_share,
-                       cameras, redraw))
+                       cameras, batch))
 
 
 def _run(steps: Generator[object, None, _T]) -> _T:
@@ -479,9 +493,9 @@ class SlicedFit:
     def __init__(self, tracks: np.ndarray, config: PearlConfig | None = None,
                  rng: np.random.Generator | int | None = None,
                  graph: Neighbourhood | None = None, deadline: float | None = None,
-                 cameras: np.ndarray | None = None, redraw: bool = True) -> None:
+                 cameras: np.ndarray | None = None, batch: bool = True) -> None:
         self._steps = _steps(tracks, config or PearlConfig(), np.random.default_rng(rng), None,
-                             deadline, 0.0, True, graph, cameras=cameras, redraw=redraw)
+                             deadline, 0.0, True, graph, cameras=cameras, batch=batch)
         self.result: PearlResult | None = None
         self.steps_run = 0
         self._search: _Search | None = None
@@ -519,13 +533,13 @@ class SlicedFit:
 def _steps(tracks: np.ndarray, config: PearlConfig, rng: np.random.Generator,
            init: np.ndarray | None, deadline: float | None, init_cost: float, propose: bool,
            graph: Neighbourhood | None, suspects: np.ndarray | None = None,
-           init_share: float = 1.0, cameras: np.ndarray | None = None, redraw: bool = True
+           init_share: float = 1.0, cameras: np.ndarray | None = None, batch: bool = True
            ) -> Generator[_Search | None, None, PearlResult]:
     """:func:`fit`'s steps: yields the search once set up, then None before each step
     (:class:`SlicedFit`); returns the result."""
     timings = {'setup': 0.0, 'propose': 0.0, 'expand': 0.0, 'refit': 0.0}
     with _timed(timings, 'setup'):
-        setting = _setting(tracks, config, rng, graph, suspects, cameras, redraw)
+        setting = _setting(tracks, config, rng, graph, suspects, cameras, batch)
     if not init_cost >= 0:
         raise InputError(f'init_cost must be >= 0, got {init_cost!r}')
     if not 0.0 <= init_share <= 1.0:
@@ -690,7 +704,7 @@ def _segment_models(setting: _Setting, labels: np.ndarray
         if new is None:
             continue
         row = model.residuals(data, new[None])[0]
-        sigma = noise_level(row[members], setting.dof, setting.floor, m, setting.ceiling)
+        sigma = noise_level(row[members], setting.dof, setting.floor, m, setting.cap(members))
         if sigma is None:
             continue
         params.append(new)
@@ -734,7 +748,7 @@ def _outlier_cost(threshold: float, scale: float, dof: float, floor: float) -> f
 
 def _setting(tracks: np.ndarray, config: PearlConfig, rng: np.random.Generator,
              graph: Neighbourhood | None = None, also: np.ndarray | None = None,
-             cameras: np.ndarray | None = None, redraw: bool = True) -> _Setting:
+             cameras: np.ndarray | None = None, batch: bool = True) -> _Setting:
     solver = config.solver
     model = get_model(config.model, solver)
     if cameras is not None:
@@ -767,7 +781,7 @@ def _setting(tracks: np.ndarray, config: PearlConfig, rng: np.random.Generator,
         uniform = dof * (2.0 * math.log(max(span, floor) / floor) - math.log(2.0 * math.pi))
         costs[isolated] = min(outlier_cost, max(uniform, 0.0))
         kept = ~(isolated[edges[:, 0]] | isolated[edges[:, 1]])
-        if (redraw and solver.redraw_isolated and tracks.shape[0] >= BRIDGE_FRAMES
+        if (batch and solver.redraw_isolated and tracks.shape[0] >= BRIDGE_FRAMES
                 and isolated.any() and np.count_nonzero(~isolated) > neighbours.shape[1]):
             graph = graph.without(tracks, isolated, solver)
             neighbours, misses = graph.neighbours, graph.misses
@@ -783,6 +797,10 @@ def _setting(tracks: np.ndarray, config: PearlConfig, rng: np.random.Generator,
                                 measured)
     weights = edge_weights(misses, scale, config.smoothness, config.separation,
                            config.contrast, config.unit_quantile, stretch, counted)
+    local = None
+    if batch and solver.local_ceiling and model.name in TWO_VIEW:
+        local = nearest
+        reference = pair_unit(misses, scale, config.unit_quantile, counted)
     if cameras is not None:
         weights = static_ties(weights, edges, data[:, -1], scale, solver.static_contrast)
     return _Setting(
@@ -790,7 +808,8 @@ def _setting(tracks: np.ndarray, config: PearlConfig, rng: np.random.Generator,
         weights=weights,
         neighbours=neighbours, scale=scale, floor=floor, ceiling=ceiling, dof=dof,
         outlier_cost=costs,
-        label_cost=config.label_cost * model.label_cost_weight(data))
+        label_cost=config.label_cost * model.label_cost_weight(data),
+        local=local, reference=reference if local is not None else 0.0)
 
 
 def noise_scale(tracks: np.ndarray, config: PearlConfig | None = None,
@@ -916,7 +935,7 @@ def _refit_one(setting: _Setting, members: np.ndarray, start: np.ndarray) -> _Re
         return None
     residuals = model.residuals(setting.data, new[None])
     sigma = noise_level(residuals[0, members], setting.dof, setting.floor, model.min_samples,
-                        setting.ceiling)
+                        setting.cap(members))
     if sigma is None:
         return None
     row = data_costs(residuals, np.array([sigma]), setting.dof, setting.floor)[0]

@@ -334,7 +334,7 @@ class OnlineSegmenter:
             last = self._deadline(COLD_BUDGETS)
             assert last is not None  # a cold start is sliced only under a budget
             self._cold = _ColdStart(SlicedFit(tracks, config, self._rng, graph, last,
-                                              cameras=cameras, redraw=False),
+                                              cameras=cameras, batch=False),
                                     fitted_keys[order], order, model_name, tracks.shape[0])
         cold = self._cold
         deadline = self._deadline()
@@ -395,7 +395,7 @@ class OnlineSegmenter:
                      init_cost=self.online.temporal_cost if warm else 0.0, propose=propose,
                      graph=graph, suspects=suspects,
                      init_label_share=self.online.continued_label_cost, cameras=cameras,
-                     redraw=False)
+                     batch=False)
         per_feature = result.energy / max(tracks.shape[1], 1)
         if propose:
             self._quiet, self._energy_ref = 0, per_feature
