@@ -123,14 +123,7 @@ class Neighbourhood:
         neighbours among the points not ``left`` (N,) bool, and every miss measured again."""
         tracks = np.asarray(tracks, dtype=np.float64)
         settings = settings or default_solver()
-        k = self.neighbours.shape[1]
-        others = np.flatnonzero(~left)
-        anchor = tracks[-1]
-        _, idx = cKDTree(anchor[others]).query(anchor, k=k + 1)
-        idx = others[idx]
-        not_self = idx != np.arange(anchor.shape[0])[:, None]
-        keep = not_self & (np.cumsum(not_self, axis=1) <= k)
-        neighbours = idx[keep].reshape(anchor.shape[0], k).astype(np.int64)
+        neighbours = nearest_neighbours(tracks[-1], self.neighbours.shape[1], among=~left)
         data = get_model('affine').data(tracks)
         subspaces = local_subspaces(data, neighbours, settings)
         return Neighbourhood(self.edges, neighbours, subspace_misses(data, subspaces, self.edges),
@@ -223,14 +216,21 @@ def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return out
 
 
-def nearest_neighbours(points: np.ndarray, k: int) -> np.ndarray:
-    """Indices ``(N, k')`` of the k' = min(k, N - 1) nearest other points of each point."""
+def nearest_neighbours(points: np.ndarray, k: int, among: np.ndarray | None = None
+                       ) -> np.ndarray:
+    """Indices ``(N, k')`` of the k' = min(k, M - 1) nearest other points of each point, of
+    the M points ``among`` marks ``(N,)`` bool (default: all of them)."""
     points = np.asarray(points, dtype=np.float64)
     n = points.shape[0]
-    k = min(k, n - 1)
+    candidates = None if among is None else np.flatnonzero(among)
+    k = min(k, (n if candidates is None else candidates.size) - 1)
     if k < 1:
         return np.empty((n, 0), dtype=np.int64)
-    _, idx = cKDTree(points).query(points, k=k + 1)
+    if candidates is None:
+        _, idx = cKDTree(points).query(points, k=k + 1)
+    else:
+        _, found = cKDTree(points[candidates]).query(points, k=k + 1)
+        idx = candidates[found]
     # Drop each point itself. It is usually first, but not when another point coincides with
     # it; then the k+1 results hold it anywhere, or (among many coincident points) not at all.
     not_self = idx != np.arange(n)[:, None]

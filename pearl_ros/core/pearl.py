@@ -797,7 +797,7 @@ def _setting(tracks: np.ndarray, config: PearlConfig, rng: np.random.Generator,
                                 measured)
     weights = edge_weights(misses, scale, config.smoothness, config.separation,
                            config.contrast, config.unit_quantile, stretch, counted)
-    local = None
+    local, reference = None, 0.0
     if batch and solver.local_ceiling and model.name in TWO_VIEW:
         local = nearest
         reference = pair_unit(misses, scale, config.unit_quantile, counted)
@@ -809,7 +809,7 @@ def _setting(tracks: np.ndarray, config: PearlConfig, rng: np.random.Generator,
         neighbours=neighbours, scale=scale, floor=floor, ceiling=ceiling, dof=dof,
         outlier_cost=costs,
         label_cost=config.label_cost * model.label_cost_weight(data),
-        local=local, reference=reference if local is not None else 0.0)
+        local=local, reference=reference)
 
 
 def noise_scale(tracks: np.ndarray, config: PearlConfig | None = None,
