@@ -58,7 +58,8 @@ class OnlineConfig:
         low=0.0, high=1.0)
     budget_ms: float = spec(
         20.0, 'ms, per-frame time budget, the answer included (the optimiser stops early '
-        'enough for the work after it); 0 = none. When it bites, labels depend on the '
+        'enough for the work after it, publishing in the node, and for its last step); 0 = '
+        'none. When it bites, labels depend on the '
         'machine; the first fit (and the first after a reset) then runs over the frames it '
         'takes, answering with its labels so far', low=0.0, high=1e6)
     max_fitted: int = spec(

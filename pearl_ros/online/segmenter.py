@@ -64,6 +64,9 @@ STATIC_YOUNG = 3.0
 # out of the frame's budget: the fit stops that much earlier, the most this work took over the
 # last this many frames.
 TAIL_FRAMES = 10
+# A fit's last step ends past its deadline (by up to a move or a refit): the fits stop that
+# much earlier, the most it was over the last this many frames (a second at 30 Hz).
+OVERRUN_FRAMES = 30
 
 
 @dataclass(frozen=True)
@@ -133,9 +136,12 @@ class OnlineSegmenter:
         self._cold: _ColdStart | None = None  # a budgeted cold start under way
         # Each track's isolation over its last window of fits (online/isolation.py).
         self._isolation = IsolationHistory(self.online.window)
-        # Seconds from the end of each of the last TAIL_FRAMES fits to its frame's answer.
+        # Seconds from the end of each of the last TAIL_FRAMES fits to its frame's answer, and
+        # how far each ran past its deadline (its last step's overrun; 0 for none).
         self._tails: deque[float] = deque(maxlen=TAIL_FRAMES)
+        self._overruns: deque[float] = deque(maxlen=OVERRUN_FRAMES)
         self._budget_from = 0.0  # perf_counter seconds: when this frame's budget began
+        self._fitted_at: float | None = None  # when the last frame's fit ended, if it had one
 
     @property
     def frames_in_window(self) -> int:
@@ -151,6 +157,18 @@ class OnlineSegmenter:
         self._graph = None
         self._cold = None
         self._isolation.clear()
+
+    def delivered(self, at: float | None = None) -> None:
+        """The last frame's answer went out at ``at`` (a :func:`time.perf_counter` value,
+        default now), after :meth:`process` returned it: a node calls this once it has
+        published. The time from the frame's fit to then comes out of the next frames' budget,
+        as the work after the fit within :meth:`process` does. Without a fit on the last frame,
+        or called again for it, it does nothing."""
+        at = time.perf_counter() if at is None else _check_time(at, 'at')
+        if self._fitted_at is None or not self._tails:
+            return
+        self._tails[-1] = max(self._tails[-1], at - self._fitted_at)
+        self._fitted_at = None
 
     def reconfigure(self, config: PearlConfig | None = None,
                     online: OnlineConfig | None = None) -> None:
@@ -212,7 +230,7 @@ class OnlineSegmenter:
             one, or an ``arrived`` that is not finite. The segmenter's state is then unchanged.
         """
         start = time.perf_counter()
-        self._budget_from = start if arrived is None else min(_check_arrived(arrived), start)
+        self._budget_from = start if arrived is None else min(_check_time(arrived), start)
         stamp_ns, ids, uv = _check_frame(stamp_ns, ids, uv)
         camera = _check_camera(camera)
         last = self._window.last_stamp
@@ -306,6 +324,7 @@ class OnlineSegmenter:
         self._before_keys, self._before_motions = keys[remembered], before[remembered]
         self._labelled_keys, self._labelled_motions = keys[by_key], motion_labels[by_key]
         now = time.perf_counter()
+        self._fitted_at = fitted_at
         if fitted_at is not None:
             self._tails.append(now - fitted_at)
         return FrameResult(stamp_ns, labels, num_motions(motion_labels), span, fitted,
@@ -314,11 +333,19 @@ class OnlineSegmenter:
     def _deadline(self, budgets: float = 1.0) -> float | None:
         """When a fit begun with this frame stops: ``budgets`` budgets after the frame arrived
         (:meth:`process`'s ``arrived``), less the time the frame's answer took after the fit on
-        the last frames (their most); None without a budget."""
+        the last frames (their most, until :meth:`delivered` where called) and the most a fit
+        ran past its deadline on the last ``OVERRUN_FRAMES``; None without a budget."""
         budget = self.online.budget_ms / 1e3
         if budget <= 0:
             return None
-        return self._budget_from + budgets * budget - max(self._tails, default=0.0)
+        return (self._budget_from + budgets * budget - max(self._tails, default=0.0)
+                - max(self._overruns, default=0.0))
+
+    def _overran(self, deadline: float | None, began: float, fitted_at: float) -> None:
+        """Keep how far a fit begun at ``began`` ran past its ``deadline``; none for a fit
+        that began past it (it runs its least work, whatever the margin)."""
+        if deadline is not None:
+            self._overruns.append(max(fitted_at - deadline, 0.0) if began < deadline else 0.0)
 
     def _cold_slice(self, tracks: np.ndarray, fitted_keys: np.ndarray, model_name: str,
                     keys: np.ndarray, seen: np.ndarray, n: int, stamp_ns: int, reset: bool,
@@ -339,8 +366,10 @@ class OnlineSegmenter:
         cold = self._cold
         deadline = self._deadline()
         assert deadline is not None
+        began = time.perf_counter()
         result = cold.fit.advance(deadline)
         fitted_at = time.perf_counter()
+        self._overran(deadline, began, fitted_at)
         segments = cold.fit.labels
         if segments is None or not np.any(segments != OUTLIER):
             return self._answer(keys, np.full(keys.size, OUTLIER, dtype=np.int64), seen, n,
@@ -391,11 +420,13 @@ class OnlineSegmenter:
             config = self._config(model_name, noise, 'slice')
         else:
             config = self._config(model_name, noise, 'cold')
+        began = time.perf_counter()
         result = fit(tracks, config, self._rng, init=init, deadline=deadline,
                      init_cost=self.online.temporal_cost if warm else 0.0, propose=propose,
                      graph=graph, suspects=suspects,
                      init_label_share=self.online.continued_label_cost, cameras=cameras,
                      batch=False)
+        self._overran(deadline, began, time.perf_counter())
         per_feature = result.energy / max(tracks.shape[1], 1)
         if propose:
             self._quiet, self._energy_ref = 0, per_feature
@@ -518,15 +549,16 @@ class _ColdStart:
     frames: int
 
 
-def _check_arrived(arrived: object) -> float:
-    """``arrived`` as a float, or InputError unless it is a finite time."""
+def _check_time(value: object, name: str = 'arrived') -> float:
+    """``value`` (the argument ``name``) as a float, or InputError unless it is a finite
+    time."""
     try:
-        value = float(arrived)  # type: ignore[arg-type]
+        seconds = float(value)  # type: ignore[arg-type]
     except (TypeError, ValueError):
-        value = math.nan
-    if not math.isfinite(value):
-        raise InputError(f'arrived must be a finite time.perf_counter() value, got {arrived!r}')
-    return value
+        seconds = math.nan
+    if not math.isfinite(seconds):
+        raise InputError(f'{name} must be a finite time.perf_counter() value, got {value!r}')
+    return seconds
 
 
 def _check_frame(stamp_ns: int, ids: np.ndarray, uv: np.ndarray

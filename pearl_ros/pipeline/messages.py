@@ -199,6 +199,13 @@ class MessagePipeline:
     def frames_in_window(self) -> int:
         return self._segmenter.frames_in_window
 
+    def delivered(self, at: float | None = None) -> None:
+        """The outputs of the last message :meth:`process` labelled went out at ``at``
+        (:func:`time.perf_counter`, default now): the time they took after the segmenter's
+        answer (encoding, publishing) comes out of the next frames' budget
+        (:meth:`OnlineSegmenter.delivered`)."""
+        self._segmenter.delivered(at)
+
     def reconfigure(self, settings: Settings) -> None:
         """New settings from the next message on; the window is kept."""
         self._segmenter.reconfigure(*settings.configs)

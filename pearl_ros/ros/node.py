@@ -480,6 +480,8 @@ class PearlNode(Node):
         with self._quiet_after_shutdown():
             self._labels_pub.publish(cdr.serialize(out.labels_msg))
             self._static_pub.publish(cdr.serialize(out.static_msg))
+        with self._pipeline_lock:  # publishing counts in the budget of the frames after
+            self._pipeline.delivered()
         latency = time.perf_counter() - arrival
         with self._lock:
             stats = self.stats

@@ -425,27 +425,43 @@ def test_a_budgeted_cold_start_answers_its_labels_so_far_until_its_fit_is_done(m
     assert misclassification(results[-1].labels, frames[-1].truth) < 0.05
 
 
+def _spy_on_deadlines(monkeypatch, late_first=0.0):
+    """The segmenter's warm fits, spied on: the list of the seconds each had left until its
+    deadline when it began; the first one ends ``late_first`` s past its deadline."""
+    from pearl_ros.online import segmenter as module
+
+    real_fit, room = module.fit, []
+
+    def timed_fit(tracks, config, rng, **kwargs):
+        deadline = kwargs['deadline']
+        room.append(deadline - time.perf_counter())
+        result = real_fit(tracks, config, rng, **kwargs)
+        if late_first and len(room) == 1:
+            time.sleep(max(deadline + late_first - time.perf_counter(), 0.0))
+        return result
+
+    monkeypatch.setattr(module, 'fit', timed_fit)
+    return room
+
+
+BUDGETED = dataclasses.replace(UNTIMED, budget_ms=50.0, warm_start=True)
+
+
 def test_the_work_after_the_fit_comes_out_of_the_frames_budget(monkeypatch):
     # The budget bounds the frame, its answer included: where labelling the young tracks
     # takes 30 ms, a 50 ms budget leaves the fit at most 20 ms from when it starts.
     from pearl_ros.online import segmenter as module
 
-    real_fit, real_young = module.fit, module._nearest_subspace
-    room = []
-
-    def timed_fit(tracks, config, rng, **kwargs):
-        room.append(kwargs['deadline'] - time.perf_counter())
-        return real_fit(tracks, config, rng, **kwargs)
+    real_young = module._nearest_subspace
 
     def slow_young(*args, **kwargs):
         time.sleep(0.030)
         return real_young(*args, **kwargs)
 
-    monkeypatch.setattr(module, 'fit', timed_fit)
+    room = _spy_on_deadlines(monkeypatch)
     monkeypatch.setattr(module, '_nearest_subspace', slow_young)
-    frames = list(synthetic_stream(150, 12, (BodySpec(0.3),), seed=1))
-    seg = OnlineSegmenter(online=dataclasses.replace(UNTIMED, budget_ms=50.0, warm_start=True))
-    run(frames, seg)
+    run(list(synthetic_stream(150, 12, (BodySpec(0.3),), seed=1)), OnlineSegmenter(
+        online=BUDGETED))
     # Warm fits after one with young tracks labelled: the 30 ms are set aside.
     assert len(room) > 4
     assert max(room[2:]) <= 0.020
@@ -454,22 +470,44 @@ def test_the_work_after_the_fit_comes_out_of_the_frames_budget(monkeypatch):
 def test_the_budget_counts_from_when_the_frame_arrived(monkeypatch):
     # A frame that waited 30 ms for the worker (a node's callback took it then) leaves the fit
     # at most 20 ms of a 50 ms budget.
-    from pearl_ros.online import segmenter as module
-
-    real_fit = module.fit
-    room = []
-
-    def timed_fit(tracks, config, rng, **kwargs):
-        room.append(kwargs['deadline'] - time.perf_counter())
-        return real_fit(tracks, config, rng, **kwargs)
-
-    monkeypatch.setattr(module, 'fit', timed_fit)
-    frames = list(synthetic_stream(150, 12, (BodySpec(0.3),), seed=1))
+    room = _spy_on_deadlines(monkeypatch)
     seg = OnlineSegmenter(online=dataclasses.replace(UNTIMED, budget_ms=50.0))
-    for frame in frames:
+    for frame in synthetic_stream(150, 12, (BodySpec(0.3),), seed=1):
         seg.process(frame.stamp_ns, frame.ids, frame.uv, arrived=time.perf_counter() - 0.030)
     assert len(room) > 4
     assert max(room) <= 0.020
+
+
+def test_the_time_an_answer_took_to_go_out_comes_out_of_the_next_frames_budget(monkeypatch):
+    # A node that takes 30 ms to publish each answer, and says so (delivered), leaves the
+    # fits of the frames after at most 20 ms of a 50 ms budget.
+    room = _spy_on_deadlines(monkeypatch)
+    seg = OnlineSegmenter(online=BUDGETED)
+    for frame in synthetic_stream(150, 12, (BodySpec(0.3),), seed=1):
+        seg.process(frame.stamp_ns, frame.ids, frame.uv)
+        time.sleep(0.030)
+        seg.delivered()
+    assert len(room) > 4
+    assert max(room) <= 0.020
+
+
+def test_a_fit_that_ran_past_its_deadline_leaves_the_next_fits_that_much_earlier(monkeypatch):
+    # The first warm fit's last step runs 15 ms past its deadline: the fits after it stop
+    # 15 ms earlier, 35 ms into a 50 ms budget at most.
+    room = _spy_on_deadlines(monkeypatch, late_first=0.015)
+    run(list(synthetic_stream(150, 12, (BodySpec(0.3),), seed=1)), OnlineSegmenter(
+        online=BUDGETED))
+    assert len(room) > 4
+    assert room[0] > 0.035 and max(room[1:]) <= 0.035
+
+
+@pytest.mark.parametrize('at', [math.nan, -math.inf, 'later'])
+def test_a_delivery_time_that_is_no_time_is_refused(at):
+    frames = list(synthetic_stream(150, 3, (BodySpec(0.3),), seed=1))
+    seg = OnlineSegmenter(online=UNTIMED)
+    run(frames, seg)
+    with pytest.raises(InputError, match='at must be a finite'):
+        seg.delivered(at)
 
 
 @pytest.mark.parametrize('arrived', [math.nan, math.inf, 'now'])

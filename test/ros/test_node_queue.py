@@ -9,6 +9,7 @@ worker must really be computing.
 from __future__ import annotations
 
 import threading
+import time
 from typing import Any
 
 import numpy as np
@@ -154,6 +155,33 @@ def test_all_drops_the_oldest_beyond_qos_depth_and_counts_it(ros: Ros) -> None:
     assert int(values['messages dropped (late)']) == len(sent) - len(answered)
     assert ros.spin_until(lambda: probe.warnings('dropped unanswered'))
     assert '5 messages (qos_depth) were already waiting' in probe.warnings('dropped')[0]
+
+
+def test_the_time_spent_publishing_comes_out_of_the_next_frames_budget(
+        ros: Ros, monkeypatch: pytest.MonkeyPatch) -> None:
+    # Publishing that takes 30 ms after each answer leaves the fits of the frames after at
+    # most 20 ms of a 50 ms budget, counted from when the node took the message.
+    from pearl_ros.online import segmenter as module
+
+    real_fit, room = module.fit, []
+
+    def timed_fit(tracks: Any, config: Any, rng: Any, **kwargs: Any) -> Any:
+        room.append(kwargs['deadline'] - time.perf_counter())
+        return real_fit(tracks, config, rng, **kwargs)
+
+    monkeypatch.setattr(module, 'fit', timed_fit)
+    node, probe = _start(ros, budget_ms=50.0, qos='reliable')
+    publish = node._static_pub.publish
+
+    def slow_publish(msg: Any) -> None:
+        time.sleep(0.030)
+        publish(msg)
+
+    node._static_pub.publish = slow_publish  # type: ignore[method-assign]
+    for frame in STREAM[:10]:
+        probe.send(cloud(frame))
+    assert len(room) > 4
+    assert max(room) <= 0.020
 
 
 def test_queue_policy_is_read_only_and_refuses_an_unknown_policy(ros: Ros) -> None:
