@@ -227,6 +227,7 @@ class _Setting:
     # reference of a model's ceiling (noise scale or pair unit), SolverSettings.local_ceiling.
     local: np.ndarray | None = None
     reference: float = 0.0
+    batch: bool = True  # fit(..., batch=): False for the online segmenter's fits
 
     def cap(self, members: np.ndarray) -> float:
         """The most noise level a model of ``members`` may claim, px."""
@@ -338,11 +339,12 @@ class _Search:
         self.fitted_to[label - 1] = members
 
     def refitted_already(self, label: int, members: np.ndarray) -> bool:
-        """Whether a refit of model ``label`` to ``members`` would give the model it is: its
-        family refits in closed form and it was last fitted to these very points."""
+        """Whether a refit of model ``label`` to ``members`` would give the model it is: it
+        was last fitted to these very points, and its family refits in closed form or (batch
+        fits) its refit was a Levenberg-Marquardt descent, which from its own end stays there."""
         last = self.fitted_to[label - 1]
-        return (not self.setting.model.refit_from_start and last is not None
-                and np.array_equal(last, members))
+        return ((self.setting.batch or not self.setting.model.refit_from_start)
+                and last is not None and np.array_equal(last, members))
 
     def compress(self) -> None:
         """Keep only the models in use, renumbered by decreasing support (:func:`_compress`).
@@ -437,8 +439,10 @@ def fit(
     batch : bool
         False for the online segmenter's fits: every point's patch stays as ``graph`` drew it,
         isolated points among them (``SolverSettings.redraw_isolated``: a stream's isolated
-        points change from frame to frame, and its patches with them would), and two-view
-        models claim any noise level (``SolverSettings.local_ceiling``).
+        points change from frame to frame, and its patches with them would), two-view
+        models claim any noise level (``SolverSettings.local_ceiling``), and a two-view model
+        is refitted again to the points it was last refitted to (a batch fit leaves it: its
+        Levenberg-Marquardt refit would end where it is).
 
     Returns
     -------
@@ -809,7 +813,7 @@ def _setting(tracks: np.ndarray, config: PearlConfig, rng: np.random.Generator,
         neighbours=neighbours, scale=scale, floor=floor, ceiling=ceiling, dof=dof,
         outlier_cost=costs,
         label_cost=config.label_cost * model.label_cost_weight(data),
-        local=local, reference=reference)
+        local=local, reference=reference, batch=batch)
 
 
 def noise_scale(tracks: np.ndarray, config: PearlConfig | None = None,

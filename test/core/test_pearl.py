@@ -440,11 +440,8 @@ def test_a_sigma_ceiling_bounds_every_model_noise_level(affine_scene) -> None:
     assert capped.sigmas.max() <= 4.0 * capped.scale * (1 + 1e-12)
 
 
-def test_closed_form_models_already_fitted_to_their_points_are_not_refitted(affine_scene,
-                                                                          monkeypatch):
-    # Oracle: the same fit with the shortcut disabled. An affine refit depends on its points
-    # only, so skipping one whose points did not change must leave every result bit for bit.
-    tracks, truth = affine_scene(sizes=(120, 90, 80), noise=0.5, seed=5)
+def _count_refits(monkeypatch):
+    """A list that gets the member count of every model refit from now on."""
     calls = []
     real = pearl._refit_one
 
@@ -453,6 +450,15 @@ def test_closed_form_models_already_fitted_to_their_points_are_not_refitted(affi
         return real(setting, members, start)
 
     monkeypatch.setattr(pearl, '_refit_one', counted)
+    return calls
+
+
+def test_closed_form_models_already_fitted_to_their_points_are_not_refitted(affine_scene,
+                                                                          monkeypatch):
+    # Oracle: the same fit with the shortcut disabled. An affine refit depends on its points
+    # only, so skipping one whose points did not change must leave every result bit for bit.
+    tracks, truth = affine_scene(sizes=(120, 90, 80), noise=0.5, seed=5)
+    calls = _count_refits(monkeypatch)
     fast = fit(tracks, rng=0, init=truth, init_cost=2.0)
     skipped_calls = len(calls)
     calls.clear()
@@ -462,3 +468,32 @@ def test_closed_form_models_already_fitted_to_their_points_are_not_refitted(affi
     assert np.array_equal(fast.labels, slow.labels)
     assert np.array_equal(fast.params, slow.params)
     assert fast.energy == slow.energy
+
+
+@pytest.mark.parametrize('model', ['fundamental', 'homography'])
+def test_batch_two_view_models_refitted_to_the_same_points_are_not_refitted_again(
+        affine_scene, model, monkeypatch):
+    # Oracle: the same fit refitting every model every iteration. A Levenberg-Marquardt refit
+    # of a model to the points it was last refitted to starts where it ended: the labels and
+    # the models' noise levels come out the same, the energy within what a further LM step
+    # gains. The online segmenter's fits (batch=False) keep refitting.
+    tracks, _ = affine_scene(sizes=(120, 90), noise=0.5, seed=4)
+    tracks = tracks[[0, -1]]
+    config = PearlConfig(model=model)
+    calls = _count_refits(monkeypatch)
+    results, counts = {}, {}
+    for batch in (True, False):
+        calls.clear()
+        results[batch] = fit(tracks, config, rng=3, batch=batch)
+        counts[batch] = len(calls)
+    monkeypatch.setattr(pearl._Search, 'refitted_already', lambda self, label, members: False)
+    for batch in (True, False):
+        calls.clear()
+        every = fit(tracks, config, rng=3, batch=batch)
+        assert np.array_equal(results[batch].labels, every.labels)
+        np.testing.assert_allclose(results[batch].sigmas, every.sigmas, rtol=1e-6)
+        assert results[batch].energy == pytest.approx(every.energy, rel=1e-6)
+        if batch:
+            assert counts[batch] < len(calls)
+        else:
+            assert counts[batch] == len(calls)
