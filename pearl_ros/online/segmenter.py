@@ -165,7 +165,7 @@ class OnlineSegmenter:
         as the work after the fit within :meth:`process` does. Without a fit on the last frame,
         or called again for it, it does nothing."""
         at = time.perf_counter() if at is None else _check_time(at, 'at')
-        if self._fitted_at is None or not self._tails:
+        if self._fitted_at is None:  # else the frame's tail is the last one kept
             return
         self._tails[-1] = max(self._tails[-1], at - self._fitted_at)
         self._fitted_at = None
