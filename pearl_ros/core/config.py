@@ -157,8 +157,9 @@ class SolverSettings:
         True, 'batch fits over three frames or more: once the isolated points are known, '
         "each point's patch is drawn again from its nearest image neighbours among the "
         "others, so that outlier tracks do not take the place of a body's points in their "
-        "neighbours' patches (the online segmenter keeps its patches: the isolated points "
-        'change from frame to frame)')
+        "neighbours' patches, and a point stays isolated only where it still is on the new "
+        'patches (the online segmenter keeps its patches: the isolated points change from '
+        'frame to frame)')
     local_ceiling: float = spec(
         4.0, "batch two-view fits (fundamental matrices, homographies): a model's noise level "
         "is at most this many times its members' local noise, the median of their nearest "

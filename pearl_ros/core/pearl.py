@@ -781,15 +781,16 @@ def _setting(tracks: np.ndarray, config: PearlConfig, rng: np.random.Generator,
     misses, measured = graph.misses, edges.shape[0]
     if suspect is not None:
         isolated = suspect & (nearest > solver.isolation_floor * scale)
+        if (batch and solver.redraw_isolated and tracks.shape[0] >= BRIDGE_FRAMES
+                and isolated.any() and np.count_nonzero(~isolated) > neighbours.shape[1]):
+            graph, isolated = _redrawn(graph, tracks, isolated, solver,
+                                       solver.isolation_floor * scale, also)
+            neighbours, misses = graph.neighbours, graph.misses
         # Per coordinate: a reduction over the long axis of an (M, 2) array is 20 times slower.
         span = float(max(np.ptp(tracks[..., 0]), np.ptp(tracks[..., 1])))
         uniform = dof * (2.0 * math.log(max(span, floor) / floor) - math.log(2.0 * math.pi))
         costs[isolated] = min(outlier_cost, max(uniform, 0.0))
         kept = ~(isolated[edges[:, 0]] | isolated[edges[:, 1]])
-        if (batch and solver.redraw_isolated and tracks.shape[0] >= BRIDGE_FRAMES
-                and isolated.any() and np.count_nonzero(~isolated) > neighbours.shape[1]):
-            graph = graph.without(tracks, isolated, solver)
-            neighbours, misses = graph.neighbours, graph.misses
         if solver.bridge_isolated and tracks.shape[0] >= BRIDGE_FRAMES and isolated.any():
             bridges, bridge_misses = graph.bridges(tracks, isolated, solver)
             edges = np.concatenate([edges, bridges])
@@ -867,6 +868,31 @@ def _suspects(nearest: np.ndarray, isolation: float, also: np.ndarray | None = N
     if also is not None:
         suspect |= _check_suspects(also, nearest.size)
     return suspect
+
+
+def _redrawn(graph: Neighbourhood, tracks: np.ndarray, isolated: np.ndarray,
+             solver: SolverSettings, floor: float, also: np.ndarray | None
+             ) -> tuple[Neighbourhood, np.ndarray]:
+    """``graph`` with every patch drawn again among the points not ``isolated`` (N,) bool
+    (:meth:`Neighbourhood.without`), and the points still isolated on those patches: their
+    nearest miss still above ``floor`` px and the isolation test's threshold.
+
+    The first test reads the patches as drawn, outlier tracks among them. A true point whose
+    patch held several is then as far from its neighbours' subspaces as an outlier, and its
+    neighbours, joined across it by bridges that run far across the body, are cut apart for
+    the rewards of those bridges (Hopkins155 with outlier tracks: a background split in two).
+    Drawn among its own body's points, its patch takes it back. The patches are drawn once
+    more, without the points that stay isolated.
+    """
+    redrawn = graph.without(tracks, isolated, solver)
+    nearest = redrawn.nearest_miss()
+    suspect = _suspects(nearest, solver.isolation, also)
+    if suspect is None:
+        return redrawn, isolated
+    still = isolated & suspect & (nearest > floor)
+    if np.count_nonzero(still) == np.count_nonzero(isolated):
+        return redrawn, isolated
+    return graph.without(tracks, still, solver), still
 
 
 def _check_suspects(suspects: np.ndarray, n: int) -> np.ndarray:
