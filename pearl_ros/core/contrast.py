@@ -216,6 +216,13 @@ def _spread(rows: np.ndarray, groups: np.ndarray, dim: int) -> np.ndarray:
     ``(G,)``."""
     points = rows[groups]
     centred = points - points.mean(axis=1, keepdims=True)
-    values = np.linalg.svd(centred, compute_uv=False)
-    spread: np.ndarray = np.sqrt(np.sum(np.square(values[:, dim:]), axis=1) / groups.shape[1])
+    # The squared singular values are the eigenvalues of the smaller Gram matrix (ascending):
+    # twice as fast as an SVD of these small matrices.
+    if centred.shape[1] <= centred.shape[2]:
+        gram = centred @ np.transpose(centred, (0, 2, 1))
+    else:
+        gram = np.transpose(centred, (0, 2, 1)) @ centred
+    squares = np.maximum(np.linalg.eigvalsh(gram), 0.0)
+    rest = squares[:, : max(squares.shape[1] - dim, 0)].sum(axis=1)
+    spread: np.ndarray = np.sqrt(rest / groups.shape[1])
     return spread

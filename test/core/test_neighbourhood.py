@@ -98,3 +98,16 @@ def test_a_neighbourhood_of_other_points_is_refused():
         graph.check(29)
     with pytest.raises(InputError, match='ids'):
         neighbourhood(tracks, np.arange(29))
+
+
+@pytest.mark.parametrize('ordered', [True, False])
+def test_among_finds_codes_as_isin_does_in_sorted_and_unsorted_tables(ordered):
+    from pearl_ros.core.neighbourhood import _among
+
+    rng = np.random.default_rng(int(ordered))
+    known = rng.choice(10_000, 300, replace=False)
+    if ordered:
+        known = np.sort(known)
+    codes = np.concatenate([rng.choice(known, 40), rng.integers(-5, 10_005, 200)])
+    np.testing.assert_array_equal(_among(codes, known), np.isin(codes, known))
+    assert not _among(codes, known[:0]).any()
