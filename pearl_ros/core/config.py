@@ -149,6 +149,13 @@ class SolverSettings:
         3.0, 'streaming: least mean isolation (times the 10% quantile) of a track suspected '
         'on its past frames, so that no track is suspected where every track moves alike',
         low=1.0, high=1e6)
+    persist_outliers: bool = spec(
+        False, 'streaming: a track suspected on its past frames (persist_deviations) is an '
+        'outlier: isolated whatever its nearest miss, its outlier cost 0 and its ties to its '
+        'neighbours dropped (the rewards of pairs that move apart stay), so that no model, '
+        'however wide, holds it; for streams with wandering outlier tracks (off: such a '
+        'track only stays out of the noise scale and the pair unit, and true tracks that '
+        'perspective keeps apart from their neighbours keep their labels)')
     bridge_isolated: bool = spec(
         True, 'over three frames or more, the points around isolated ones are also joined by '
         'the edges a Delaunay triangulation without the isolated points has, so that '

@@ -425,7 +425,9 @@ def fit(
     suspects : (N,) bool, optional
         Points the caller suspects isolated, besides those the isolation test finds
         (``SolverSettings.isolation``; the online segmenter judges tracks over their past
-        frames). Ignored when the test is off.
+        frames). With ``SolverSettings.persist_outliers`` they are outliers: isolated whatever
+        their nearest miss, their outlier cost 0 and their ties dropped (a pair's reward
+        stays). Ignored when the test is off.
     init_label_share : float in [0, 1]
         With ``init``: the share of the label cost that a model standing for an init segment
         pays (a motion that goes on), where a fresh proposal pays all of it. Below 1, a motion
@@ -779,17 +781,23 @@ def _setting(tracks: np.ndarray, config: PearlConfig, rng: np.random.Generator,
     costs = np.full(n, outlier_cost)
     counted = None
     misses, measured = graph.misses, edges.shape[0]
+    held = None  # the caller's suspects, taken as outliers (SolverSettings.persist_outliers)
     if suspect is not None:
         isolated = suspect & (nearest > solver.isolation_floor * scale)
+        if also is not None and solver.persist_outliers:
+            held = _check_suspects(also, n)
+            isolated |= held
         if (batch and solver.redraw_isolated and tracks.shape[0] >= BRIDGE_FRAMES
                 and isolated.any() and np.count_nonzero(~isolated) > neighbours.shape[1]):
             graph, isolated = _redrawn(graph, tracks, isolated, solver,
-                                       solver.isolation_floor * scale, also)
+                                       solver.isolation_floor * scale, also, held)
             neighbours, misses = graph.neighbours, graph.misses
         # Per coordinate: a reduction over the long axis of an (M, 2) array is 20 times slower.
         span = float(max(np.ptp(tracks[..., 0]), np.ptp(tracks[..., 1])))
         uniform = dof * (2.0 * math.log(max(span, floor) / floor) - math.log(2.0 * math.pi))
         costs[isolated] = min(outlier_cost, max(uniform, 0.0))
+        if held is not None:
+            costs[held] = 0.0
         kept = ~(isolated[edges[:, 0]] | isolated[edges[:, 1]])
         if solver.bridge_isolated and tracks.shape[0] >= BRIDGE_FRAMES and isolated.any():
             bridges, bridge_misses = graph.bridges(tracks, isolated, solver)
@@ -803,6 +811,12 @@ def _setting(tracks: np.ndarray, config: PearlConfig, rng: np.random.Generator,
                                 measured)
     weights = edge_weights(misses, scale, config.smoothness, config.separation,
                            config.contrast, config.unit_quantile, stretch, counted)
+    if held is not None:
+        # A track held apart keeps no tie to its neighbours, only the rewards of the pairs
+        # that move apart, which the outlier label collects whatever its neighbours' labels
+        # (outlier_apart): no labelling pays less for it than the outlier label.
+        loose = held[edges[:, 0]] | held[edges[:, 1]]
+        weights[loose] = np.minimum(weights[loose], 0.0)
     local, reference = None, 0.0
     if batch and solver.local_ceiling and model.name in TWO_VIEW:
         local = nearest
@@ -871,8 +885,8 @@ def _suspects(nearest: np.ndarray, isolation: float, also: np.ndarray | None = N
 
 
 def _redrawn(graph: Neighbourhood, tracks: np.ndarray, isolated: np.ndarray,
-             solver: SolverSettings, floor: float, also: np.ndarray | None
-             ) -> tuple[Neighbourhood, np.ndarray]:
+             solver: SolverSettings, floor: float, also: np.ndarray | None,
+             held: np.ndarray | None = None) -> tuple[Neighbourhood, np.ndarray]:
     """``graph`` with every patch drawn again among the points not ``isolated`` (N,) bool
     (:meth:`Neighbourhood.without`), and the points still isolated on those patches: their
     nearest miss still above ``floor`` px and the isolation test's threshold.
@@ -882,7 +896,8 @@ def _redrawn(graph: Neighbourhood, tracks: np.ndarray, isolated: np.ndarray,
     neighbours, joined across it by bridges that run far across the body, are cut apart for
     the rewards of those bridges (Hopkins155 with outlier tracks: a background split in two).
     Drawn among its own body's points, its patch takes it back. The patches are drawn once
-    more, without the points that stay isolated.
+    more, without the points that stay isolated. Points ``held`` (N,) bool, the caller's taken
+    as outliers whatever their misses, stay isolated.
     """
     redrawn = graph.without(tracks, isolated, solver)
     nearest = redrawn.nearest_miss()
@@ -890,6 +905,8 @@ def _redrawn(graph: Neighbourhood, tracks: np.ndarray, isolated: np.ndarray,
     if suspect is None:
         return redrawn, isolated
     still = isolated & suspect & (nearest > floor)
+    if held is not None:
+        still |= held
     if np.count_nonzero(still) == np.count_nonzero(isolated):
         return redrawn, isolated
     return graph.without(tracks, still, solver), still
