@@ -150,12 +150,17 @@ class SolverSettings:
         'on its past frames, so that no track is suspected where every track moves alike',
         low=1.0, high=1e6)
     persist_outliers: bool = spec(
-        False, 'streaming: a track suspected on its past frames (persist_deviations) is an '
-        'outlier: isolated whatever its nearest miss, its outlier cost 0 and its ties to its '
-        'neighbours dropped (the rewards of pairs that move apart stay), so that no model, '
-        'however wide, holds it; for streams with wandering outlier tracks (off: such a '
-        'track only stays out of the noise scale and the pair unit, and true tracks that '
-        'perspective keeps apart from their neighbours keep their labels)')
+        True, 'streaming: a track suspected on its past frames (persist_deviations) and rough '
+        '(persist_roughness) is an outlier: isolated whatever its nearest miss, its outlier '
+        'cost 0 and its ties to its neighbours dropped (the rewards of pairs that move apart '
+        'stay), so that no model, however wide, holds it (off: it only stays out of the noise '
+        'scale and the pair unit)')
+    persist_roughness: float = spec(
+        2.0, 'streaming: a suspected track is an outlier (persist_outliers) only where it is '
+        'this many times rougher (RMS second difference of its positions over the window) '
+        'than the median fitted track: a wandering outlier track is rough, a true track that '
+        'perspective keeps apart from its neighbours is as smooth as the rest; 0 = every '
+        'suspect', low=0.0, high=1e6)
     bridge_isolated: bool = spec(
         True, 'over three frames or more, the points around isolated ones are also joined by '
         'the edges a Delaunay triangulation without the isolated points has, so that '

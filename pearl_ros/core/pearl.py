@@ -425,9 +425,10 @@ def fit(
     suspects : (N,) bool, optional
         Points the caller suspects isolated, besides those the isolation test finds
         (``SolverSettings.isolation``; the online segmenter judges tracks over their past
-        frames). With ``SolverSettings.persist_outliers`` they are outliers: isolated whatever
-        their nearest miss, their outlier cost 0 and their ties dropped (a pair's reward
-        stays). Ignored when the test is off.
+        frames). With ``SolverSettings.persist_outliers`` those whose tracks are rough
+        (``persist_roughness``) are outliers: isolated whatever their nearest miss, their
+        outlier cost 0 and their ties dropped (a pair's reward stays). Ignored when the test
+        is off.
     init_label_share : float in [0, 1]
         With ``init``: the share of the label cost that a model standing for an init segment
         pays (a motion that goes on), where a fresh proposal pays all of it. Below 1, a motion
@@ -784,8 +785,8 @@ def _setting(tracks: np.ndarray, config: PearlConfig, rng: np.random.Generator,
     held = None  # the caller's suspects, taken as outliers (SolverSettings.persist_outliers)
     if suspect is not None:
         isolated = suspect & (nearest > solver.isolation_floor * scale)
-        if also is not None and solver.persist_outliers:
-            held = _check_suspects(also, n)
+        if also is not None and solver.persist_outliers and tracks.shape[0] >= 3:
+            held = _check_suspects(also, n) & _rough(tracks, solver.persist_roughness)
             isolated |= held
         if (batch and solver.redraw_isolated and tracks.shape[0] >= BRIDGE_FRAMES
                 and isolated.any() and np.count_nonzero(~isolated) > neighbours.shape[1]):
@@ -882,6 +883,18 @@ def _suspects(nearest: np.ndarray, isolation: float, also: np.ndarray | None = N
     if also is not None:
         suspect |= _check_suspects(also, nearest.size)
     return suspect
+
+
+def _rough(tracks: np.ndarray, factor: float) -> np.ndarray:
+    """Tracks ``(N,)`` bool of ``tracks`` (F, N, 2), F >= 3, whose RMS second difference
+    (a pixel's acceleration from frame to frame) is more than ``factor`` times the median
+    track's. A random walk's steps are independent, so its second differences are those of
+    its steps; a rigid body's track accelerates smoothly, and its second differences are
+    about its tracking noise, as its neighbours' are."""
+    accel = tracks[2:] - 2.0 * tracks[1:-1] + tracks[:-2]
+    rough = np.sqrt(np.mean(np.sum(np.square(accel), axis=2), axis=0))
+    out: np.ndarray = rough > factor * float(np.median(rough))
+    return out
 
 
 def _redrawn(graph: Neighbourhood, tracks: np.ndarray, isolated: np.ndarray,

@@ -172,34 +172,61 @@ def test_tracks_after_a_reset_start_without_a_past(monkeypatch):
     assert given and suspected(given) == 0
 
 
-HELD = PearlConfig(solver=SolverSettings(persist_outliers=True))
+EVERY = PearlConfig(solver=SolverSettings(persist_roughness=0.0))  # every suspect held out
 
 
 def test_suspects_handed_to_fit_are_outliers_whatever_model_would_hold_them(affine_scene):
-    # Points of two clean rigid bodies, some handed over as suspects: with persist_outliers
-    # each fits its body's model within the noise, yet comes out -1 (its outlier cost 0, no
-    # tie to its neighbours but the rewards of pairs that move apart), and the rest keep their
-    # bodies. By default the suspects go with their bodies.
+    # Points of two clean rigid bodies, some handed over as suspects, every suspect held out
+    # (persist_roughness 0): each fits its body's model within the noise, yet comes out -1
+    # (its outlier cost 0, no tie to its neighbours but the rewards of pairs that move
+    # apart), and the rest keep their bodies. With persist_outliers off, the suspects go with
+    # their bodies.
     tracks, truth = affine_scene(frames=8, seed=2)
     suspects = np.zeros(truth.size, dtype=bool)
     suspects[np.random.default_rng(0).choice(truth.size, 12, replace=False)] = True
-    held = pearl.fit(tracks, HELD, rng=0, suspects=suspects)
+    held = pearl.fit(tracks, EVERY, rng=0, suspects=suspects)
     assert (held.labels[suspects] == -1).all()
     others = held.labels[~suspects]
     assert (others != -1).all() and misclassification(others, truth[~suspects]) < 0.02
-    setting = pearl._setting(tracks, HELD, np.random.default_rng(0), also=suspects,
+    setting = pearl._setting(tracks, EVERY, np.random.default_rng(0), also=suspects,
                              batch=True)
     assert (setting.outlier_cost[suspects] == 0.0).all()
     loose = suspects[setting.edges[:, 0]] | suspects[setting.edges[:, 1]]
     assert loose.any() and (setting.weights[loose] <= 0.0).all()
-    kept = pearl.fit(tracks, rng=0, suspects=suspects)
+    off = PearlConfig(solver=SolverSettings(persist_outliers=False))
+    kept = pearl.fit(tracks, off, rng=0, suspects=suspects)
     assert misclassification(kept.labels, truth) < 0.02
+
+
+def test_only_rough_suspects_are_held_out(affine_scene):
+    # Oracle: the RMS second difference of each track, against twice the median track's.
+    # Suspects whose tracks wander (a random walk of 3 px steps added) are held out; suspects
+    # as smooth as their bodies are not, by default.
+    tracks, truth = affine_scene(frames=8, seed=2)
+    rng = np.random.default_rng(1)
+    suspects = np.zeros(truth.size, dtype=bool)
+    suspects[rng.choice(truth.size, 12, replace=False)] = True
+    wander = np.flatnonzero(suspects)[:6]
+    tracks = tracks.copy()
+    tracks[:, wander] += np.cumsum(rng.normal(0.0, 3.0, (tracks.shape[0], wander.size, 2)),
+                                   axis=0)
+    accel = tracks[2:] - 2 * tracks[1:-1] + tracks[:-2]
+    rough = np.sqrt((accel**2).sum(axis=2).mean(axis=0))
+    expected = suspects & (rough > 2.0 * np.median(rough))
+    assert set(np.flatnonzero(expected)) == set(wander)
+    setting = pearl._setting(tracks, PearlConfig(), np.random.default_rng(0), also=suspects,
+                             batch=True)
+    np.testing.assert_array_equal(setting.outlier_cost == 0.0, expected)
+    result = pearl.fit(tracks, rng=0, suspects=suspects)
+    assert (result.labels[wander] == -1).all()
+    smooth = suspects & ~expected
+    assert misclassification(result.labels[smooth], truth[smooth]) == 0.0
 
 
 def test_the_wandering_tracks_a_robot_stream_suspects_come_out_as_outliers():
     # Scene 0 of the robot-like streams (10% outlier tracks wandering 3 px a frame), frames
-    # 40-79: without the suspects taken as outliers a wide model holds every walk; with them,
-    # a good share of the walks is labelled -1 and next to no point of a body is.
+    # 40-79: with persist_outliers off a wide model holds every walk; by default a good share
+    # of the walks is labelled -1 and next to no point of a body is.
     def shares(persist_outliers):
         config = PearlConfig(solver=SolverSettings(persist_outliers=persist_outliers))
         segmenter = OnlineSegmenter(config, OnlineConfig(budget_ms=0.0))
@@ -221,20 +248,20 @@ def test_the_wandering_tracks_a_robot_stream_suspects_come_out_as_outliers():
     assert body_held < 0.02
 
 
-def test_true_tracks_that_perspective_keeps_apart_are_held_out_too():
-    # Why persist_outliers is off by default: a camera driving forward over a static world
-    # with a crossing box and no outlier track at all. Perspective keeps a few true tracks
-    # apart from their neighbours' subspaces frame after frame; held out, they are labelled
-    # -1, where by default none is.
+def test_true_tracks_that_perspective_keeps_apart_are_not_held_out():
+    # A camera driving forward over a static world with a crossing box and no outlier track
+    # at all: perspective keeps a few true tracks apart from their neighbours' subspaces
+    # frame after frame, and they are suspected. They are as smooth as the rest, and none is
+    # labelled -1; held out whatever their roughness, they would be.
     from static_scene import static_scene
 
     tracks, truth, _ = static_scene(frames=20, static=60, moving=100, seed=0)
     ids = np.arange(truth.size)
     out = {}
-    for on in (True, False):
-        config = PearlConfig(solver=SolverSettings(persist_outliers=on))
+    for factor in (2.0, 0.0):
+        config = PearlConfig(solver=SolverSettings(persist_roughness=factor))
         segmenter = OnlineSegmenter(config, OnlineConfig(budget_ms=0.0))
         for t in range(tracks.shape[0]):
             labels = segmenter.process(1_000_000_000 + t * 33_333_333, ids, tracks[t]).labels
-        out[on] = np.count_nonzero(labels == -1)
-    assert out[False] == 0 and out[True] >= 2
+        out[factor] = np.count_nonzero(labels == -1)
+    assert out[2.0] == 0 and out[0.0] >= 2
