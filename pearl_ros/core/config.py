@@ -161,6 +161,12 @@ class SolverSettings:
         'than the median fitted track: a wandering outlier track is rough, a true track that '
         'perspective keeps apart from its neighbours is as smooth as the rest; 0 = every '
         'suspect', low=0.0, high=1e6)
+    persist_rough_deviations: float = spec(
+        5.0, 'streaming: a rough track (persist_roughness) is suspected on its past frames '
+        'from this many robust deviations above the median track, where a smooth one needs '
+        'persist_deviations: a rough track that stays apart from its neighbours is a '
+        'wandering outlier track, where a true one is as smooth as its body; 0 = as '
+        'persist_deviations', low=0.0, high=1e6)
     bridge_isolated: bool = spec(
         True, 'over three frames or more, the points around isolated ones are also joined by '
         'the edges a Delaunay triangulation without the isolated points has, so that '

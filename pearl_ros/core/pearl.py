@@ -786,7 +786,7 @@ def _setting(tracks: np.ndarray, config: PearlConfig, rng: np.random.Generator,
     if suspect is not None:
         isolated = suspect & (nearest > solver.isolation_floor * scale)
         if also is not None and solver.persist_outliers and tracks.shape[0] >= 3:
-            held = _check_suspects(also, n) & _rough(tracks, solver.persist_roughness)
+            held = _check_suspects(also, n) & rough_tracks(tracks, solver.persist_roughness)
             isolated |= held
         if (batch and solver.redraw_isolated and tracks.shape[0] >= BRIDGE_FRAMES
                 and isolated.any() and np.count_nonzero(~isolated) > neighbours.shape[1]):
@@ -885,7 +885,7 @@ def _suspects(nearest: np.ndarray, isolation: float, also: np.ndarray | None = N
     return suspect
 
 
-def _rough(tracks: np.ndarray, factor: float) -> np.ndarray:
+def rough_tracks(tracks: np.ndarray, factor: float) -> np.ndarray:
     """Tracks ``(N,)`` bool of ``tracks`` (F, N, 2), F >= 3, whose RMS second difference
     (a pixel's acceleration from frame to frame) is more than ``factor`` times the median
     track's. A random walk's steps are independent, so its second differences are those of

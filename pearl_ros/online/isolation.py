@@ -60,7 +60,8 @@ class IsolationHistory:
         return rows
 
 
-def persistent_suspects(logs: np.ndarray, settings: SolverSettings) -> np.ndarray:
+def persistent_suspects(logs: np.ndarray, settings: SolverSettings,
+                        rough: np.ndarray | None = None) -> np.ndarray:
     """Tracks ``(N,)`` bool isolated over their past frames, from their log isolation ratios
     ``(N, frames)`` (:meth:`IsolationHistory.update`; NaN where none).
 
@@ -68,6 +69,8 @@ def persistent_suspects(logs: np.ndarray, settings: SolverSettings) -> np.ndarra
     ratio exceeds the median of such tracks' means by ``settings.persist_deviations`` robust
     deviations (1.4826 median absolute deviations), and ``log(settings.persist_least)``. A log
     ratio of -inf (a point that its neighbour fits exactly) counts as the least finite one.
+    Tracks ``rough`` ``(N,)`` bool (:func:`pearl_ros.core.pearl.rough_tracks`) need
+    ``settings.persist_rough_deviations`` deviations instead, where that is set.
     None is suspected while fewer than :data:`LEAST_JUDGED` tracks have enough ratios.
     """
     n = logs.shape[0]
@@ -86,7 +89,9 @@ def persistent_suspects(logs: np.ndarray, settings: SolverSettings) -> np.ndarra
     means = rows.sum(axis=1) / counts[judged]
     median = float(np.median(means))
     spread = _MAD_TO_SIGMA * float(np.median(np.abs(means - median)))
-    threshold = max(median + settings.persist_deviations * spread,
-                    float(np.log(settings.persist_least)))
+    deviations = np.full(judged.size, settings.persist_deviations)
+    if rough is not None and settings.persist_rough_deviations:
+        deviations[rough[judged]] = settings.persist_rough_deviations
+    threshold = np.maximum(median + deviations * spread, float(np.log(settings.persist_least)))
     suspect[judged] = means > threshold
     return suspect

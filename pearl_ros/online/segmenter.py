@@ -45,6 +45,7 @@ from pearl_ros.core.pearl import (
     fit,
     isolation_ratios,
     noise_scale,
+    rough_tracks,
 )
 from pearl_ros.online.config import OnlineConfig
 from pearl_ros.online.isolation import LEAST_SPAN, IsolationHistory, persistent_suspects
@@ -449,7 +450,11 @@ class OnlineSegmenter:
         if solver.isolation and solver.persist_deviations and tracks.shape[0] >= LEAST_SPAN:
             ratios = isolation_ratios(graph.nearest_miss())
             if ratios is not None:
-                suspects = persistent_suspects(self._isolation.update(keys, ratios), solver)
+                rough = None
+                if solver.persist_outliers and solver.persist_rough_deviations:
+                    rough = rough_tracks(tracks, solver.persist_roughness)
+                suspects = persistent_suspects(self._isolation.update(keys, ratios), solver,
+                                               rough)
         noise = self.config.noise or self._scale(tracks, model_name, graph, suspects)
         return graph, noise, suspects
 

@@ -49,7 +49,7 @@ def test_a_ratio_of_zero_counts_as_the_least_ratio_seen():
     assert np.flatnonzero(suspect).tolist() == [LEAST_JUDGED - 1]
 
 
-def _oracle(logs, settings):
+def _oracle(logs, settings, rough=None):
     """The rule, one track at a time."""
     judged = [i for i, row in enumerate(logs) if np.count_nonzero(~np.isnan(row)) >=
               settings.persist_frames]
@@ -57,9 +57,14 @@ def _oracle(logs, settings):
     values = np.array(list(means.values()))
     median = float(np.median(values))
     spread = 1.4826 * float(np.median(np.abs(values - median)))
-    threshold = max(median + settings.persist_deviations * spread,
-                    np.log(settings.persist_least))
-    return sorted(i for i in judged if means[i] > threshold)
+
+    def threshold(i):
+        deviations = settings.persist_deviations
+        if rough is not None and rough[i]:
+            deviations = settings.persist_rough_deviations
+        return max(median + deviations * spread, np.log(settings.persist_least))
+
+    return sorted(i for i in judged if means[i] > threshold(i))
 
 
 @pytest.mark.parametrize('seed', range(5))
@@ -73,6 +78,38 @@ def test_tracks_far_above_the_median_track_are_suspected(seed):
     got = np.flatnonzero(persistent_suspects(logs, SETTINGS)).tolist()
     assert got == _oracle(logs, SETTINGS)
     assert set(got) <= set(wanderers.tolist())
+
+
+@pytest.mark.parametrize('seed', range(5))
+def test_rough_tracks_are_suspected_on_less_isolation(seed):
+    # Four tracks set 6.5 robust deviations above the median track: past the rough tracks'
+    # threshold (5), short of the others' (8); two of them rough. Only those two are
+    # suspected.
+    rng = np.random.default_rng(seed)
+    n, frames = 60, 10
+    logs = rng.normal(0.5, 0.6, (n, frames))  # 6.5 deviations: past persist_least (3)
+    rough = rng.random(n) < 0.2
+    between = rng.choice(n, 4, replace=False)
+    rough[between] = [True, True, False, False]
+
+    def scene():
+        means = logs.mean(axis=1)
+        median = float(np.median(means))
+        return means, median, 1.4826 * float(np.median(np.abs(means - median)))
+
+    for _ in range(50):  # moving them moves the median and the spread: to a fixed point
+        means, median, spread = scene()
+        logs[between] += (median + 6.5 * spread - means[between])[:, None]
+    means, median, spread = scene()
+    np.testing.assert_allclose((means[between] - median) / spread, 6.5, atol=0.01)
+    assert (means[between] > np.log(SETTINGS.persist_least)).all()
+    got = np.flatnonzero(persistent_suspects(logs, SETTINGS, rough)).tolist()
+    assert got == _oracle(logs, SETTINGS, rough)
+    assert set(got) & set(between.tolist()) == set(between[:2].tolist())
+    plain = np.flatnonzero(persistent_suspects(logs, SETTINGS)).tolist()
+    assert plain == _oracle(logs, SETTINGS) and not set(plain) & set(between.tolist())
+    off = dataclasses.replace(SETTINGS, persist_rough_deviations=0.0)
+    assert np.flatnonzero(persistent_suspects(logs, off, rough)).tolist() == plain
 
 
 def test_none_is_suspected_where_every_track_moves_alike_or_too_few_are_judged():
@@ -223,29 +260,41 @@ def test_only_rough_suspects_are_held_out(affine_scene):
     assert misclassification(result.labels[smooth], truth[smooth]) == 0.0
 
 
+def _labelled_out(solver, scene):
+    """The shares of a robot-like stream's walks and of its bodies' points labelled -1 on
+    frames 40-79, segmented with ``solver``."""
+    segmenter = OnlineSegmenter(PearlConfig(solver=solver), OnlineConfig(budget_ms=0.0))
+    walks_out = walks = body_out = body = 0
+    for t, frame in enumerate(robot_stream(frames=80, seed=scene)):
+        labels = segmenter.process(1_000_000_000 + t * 33_333_333, frame.ids, frame.uv).labels
+        if t >= 40:
+            walk = frame.truth == -1
+            walks_out += np.count_nonzero(labels[walk] == -1)
+            walks += np.count_nonzero(walk)
+            body_out += np.count_nonzero(labels[~walk] == -1)
+            body += np.count_nonzero(~walk)
+    return walks_out / walks, body_out / body
+
+
 def test_the_wandering_tracks_a_robot_stream_suspects_come_out_as_outliers():
     # Scene 0 of the robot-like streams (10% outlier tracks wandering 3 px a frame), frames
     # 40-79: with persist_outliers off a wide model holds every walk; by default a good share
     # of the walks is labelled -1 and next to no point of a body is.
-    def shares(persist_outliers):
-        config = PearlConfig(solver=SolverSettings(persist_outliers=persist_outliers))
-        segmenter = OnlineSegmenter(config, OnlineConfig(budget_ms=0.0))
-        walks_out = walks = body_out = body = 0
-        for t, frame in enumerate(robot_stream(frames=80, seed=0)):
-            labels = segmenter.process(1_000_000_000 + t * 33_333_333, frame.ids,
-                                       frame.uv).labels
-            if t >= 40:
-                walk = frame.truth == -1
-                walks_out += np.count_nonzero(labels[walk] == -1)
-                walks += np.count_nonzero(walk)
-                body_out += np.count_nonzero(labels[~walk] == -1)
-                body += np.count_nonzero(~walk)
-        return walks_out / walks, body_out / body
-
-    walks_held, body_held = shares(True)
-    walks_kept, _ = shares(False)
+    walks_held, body_held = _labelled_out(SolverSettings(), scene=0)
+    walks_kept, _ = _labelled_out(SolverSettings(persist_outliers=False), scene=0)
     assert walks_held >= 0.3 and walks_kept < 0.1
     assert body_held < 0.02
+
+
+def test_rough_tracks_of_a_robot_stream_come_out_on_less_isolation():
+    # Scene 1, frames 40-79: its walks stay apart from their neighbours by less than other
+    # scenes' (their mean isolation 3-8 robust deviations above the median track). Suspected
+    # from 5 deviations when rough, more of them are -1 than with the smooth tracks' 8, and
+    # still next to no point of a body.
+    walks_rough, body_rough = _labelled_out(SolverSettings(), scene=1)
+    walks_plain, _ = _labelled_out(SolverSettings(persist_rough_deviations=0.0), scene=1)
+    assert walks_rough >= walks_plain + 0.15
+    assert body_rough < 0.02
 
 
 def test_true_tracks_that_perspective_keeps_apart_are_not_held_out():
