@@ -254,7 +254,7 @@ class SolverSettings:
     rescale_every: int = spec(15, 'frames between estimates of the noise scale when streaming',
                               low=1, high=1000000)
     young_min_age: int = spec(
-        2, "frames a young track needs for its own trajectory to label it (fewer: its image "
+        3, "frames a young track needs for its own trajectory to label it (fewer: its image "
         "neighbours' vote)", low=2, high=1000)
     subspace_members: int = spec(
         5, 'fitted members a motion needs to offer its subspace to young tracks',
