@@ -427,6 +427,18 @@ class OnlineSegmenter:
                      graph=graph, suspects=suspects,
                      init_label_share=self.online.continued_label_cost, cameras=cameras,
                      batch=False)
+        # A warm start refits the last frame's motions first: one wide motion that took a new
+        # object in too leaves no expansion a gain, where a cold fit of the same tracks finds
+        # the object. Such a frame's fit is checked against a cold one (within the budget).
+        if init is not None and propose and result.num_models <= config.solver.restart_motions \
+                and not (deadline is not None and time.perf_counter() >= deadline):
+            cold = fit(tracks, config, self._rng, init=None, deadline=deadline,
+                       init_cost=0.0, propose=True, graph=graph, suspects=suspects,
+                       init_label_share=self.online.continued_label_cost, cameras=cameras,
+                       batch=False)
+            moved = temporal_cost(cold.labels, init, self.online.temporal_cost)
+            if cold.energy + moved < result.energy:
+                result = cold
         self._overran(deadline, began, time.perf_counter())
         per_feature = result.energy / max(tracks.shape[1], 1)
         if propose:
@@ -712,6 +724,25 @@ def _nearest_subspace(coords: np.ndarray, age: np.ndarray, fitted: np.ndarray,
         out[rows] = np.where(np.isfinite(distance_sq[nearest, np.arange(rows.size)]),
                              motions[nearest], OUTLIER)
     return out
+
+
+def temporal_cost(labels: np.ndarray, prior: np.ndarray, cost: float) -> float:
+    """The temporal term a warm fit from the segments ``prior`` (N,) (0..K-1, -1 none) would
+    charge the segmentation ``labels`` (N,) (0..L-1, -1 outliers): ``cost`` for each point with
+    a prior segment that its label does not continue, each label continuing at most one prior
+    segment, matched to keep the most points (a warm fit's models stay their segments' own
+    through refits; a fresh fit's are matched after the fact)."""
+    has = prior >= 0
+    if not has.any():
+        return 0.0
+    kept = 0.0
+    both = has & (labels >= 0)
+    if both.any():
+        table = np.zeros((int(labels.max()) + 1, int(prior.max()) + 1))
+        np.add.at(table, (labels[both], prior[both]), 1)
+        rows, cols = linear_sum_assignment(table, maximize=True)
+        kept = float(table[rows, cols].sum())
+    return float(cost * (np.count_nonzero(has) - kept))
 
 
 def _rows(tracks: np.ndarray) -> np.ndarray:
