@@ -68,6 +68,9 @@ TAIL_FRAMES = 10
 # A fit's last step ends past its deadline (by up to a move or a refit): the fits stop that
 # much earlier, the most it was over the last this many frames (a second at 30 Hz).
 OVERRUN_FRAMES = 30
+# Within a budget, the cold fit that checks a one-motion warm fit (SolverSettings.
+# restart_motions) starts only where the time left holds this many times the warm fit's own.
+RESTART_ROOM = 2.0
 
 
 @dataclass(frozen=True)
@@ -429,9 +432,12 @@ class OnlineSegmenter:
                      batch=False)
         # A warm start refits the last frame's motions first: one wide motion that took a new
         # object in too leaves no expansion a gain, where a cold fit of the same tracks finds
-        # the object. Such a frame's fit is checked against a cold one (within the budget).
+        # the object. Such a frame's fit is checked against a cold one, where the budget has
+        # room for it.
+        fitted_at = time.perf_counter()
         if init is not None and propose and result.num_models <= config.solver.restart_motions \
-                and not (deadline is not None and time.perf_counter() >= deadline):
+                and (deadline is None or fitted_at + RESTART_ROOM * (fitted_at - began)
+                     < deadline):
             cold = fit(tracks, config, self._rng, init=None, deadline=deadline,
                        init_cost=0.0, propose=True, graph=graph, suspects=suspects,
                        init_label_share=self.online.continued_label_cost, cameras=cameras,
