@@ -239,6 +239,11 @@ class SolverSettings:
         'is weaker evidence than a long subspace)', low=0.0, high=100.0)
     homography_cost_weight: float = spec(1.0, 'factor on label_cost for a homography',
                                          low=0.0, high=100.0)
+    two_view_restarts: int = spec(
+        3, 'batch two-view fits (fundamental matrices, homographies): fits from fresh draws '
+        '(the noise scale\'s too), of which the lowest energy is kept: their searches end in '
+        'different minima from seed to seed; the online segmenter\'s fits run once', low=1,
+        high=1000)
     fundamental_reweight_steps: int = spec(
         1, 'Sampson-reweighted linear fits of F after the first, when measuring the noise scale',
         low=0, high=100)

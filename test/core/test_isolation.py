@@ -88,15 +88,20 @@ def test_isolated_points_pay_the_uniform_outlier_cost_and_leave_the_pair_unit(af
 
 def test_isolation_and_outliers_apart_find_the_motions_among_40_percent_mismatches(
         affine_scene):
-    tracks, truth, bad = _scene_with_mismatches(affine_scene, 0.4, seed=4)
-    solver = SolverSettings()
-    found = pearl.fit(tracks, PearlConfig(model='fundamental', solver=solver), rng=0)
+    # Eight scenes: a two-view search at 40% mismatches ends in a wrong minimum on some
+    # (one of eight at 37%), so the scenes' median is judged. Scored with the mismatches as a
+    # group of their own, as AdelaideRMF is.
     without = SolverSettings(isolation=0.0, outlier_apart=False)
-    default = pearl.fit(tracks, PearlConfig(model='fundamental', solver=without), rng=0)
-    # Scored with the mismatches as a group of their own, as AdelaideRMF is.
-    assert misclassification(found.labels, truth) < 0.1
-    assert misclassification(found.labels, truth) < misclassification(default.labels, truth)
-    assert np.mean(found.labels[bad] == OUTLIER) > 0.8
+    errors, recalls = [], []
+    for seed in range(8):
+        tracks, truth, bad = _scene_with_mismatches(affine_scene, 0.4, seed=seed)
+        found = pearl.fit(tracks, PearlConfig(model='fundamental'), rng=0)
+        default = pearl.fit(tracks, PearlConfig(model='fundamental', solver=without), rng=0)
+        errors.append(misclassification(found.labels, truth))
+        assert errors[-1] < misclassification(default.labels, truth), seed
+        recalls.append(np.mean(found.labels[bad] == OUTLIER))
+    assert np.median(errors) < 0.1
+    assert np.median(recalls) > 0.8
 
 
 def test_the_online_scale_given_the_graph_is_the_scale_fit_reads(affine_scene):
