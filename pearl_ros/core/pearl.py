@@ -74,7 +74,7 @@ class PearlResult:
     energy_history : tuple of float, energy after every expand / re-estimate iteration and
         after the merges that end a round
     iterations : int, expand / re-estimate iterations run
-    timings : dict of str to float, seconds per step
+    timings : dict of str to float, seconds per step (of every fit a restarted fit ran)
     scale : float, pixels, the residual scale the data costs were measured in
     """
 
@@ -458,15 +458,18 @@ def fit(
     restarts = (config.solver.two_view_restarts
                 if batch and init is None and config.model in TWO_VIEW else 1)
     best: PearlResult | None = None
+    spent: dict[str, float] = {}  # every fit's seconds per step
     for restart in range(restarts):
         if restart and _past(deadline):
             break
         result = _run(_steps(tracks, config, generator, init, deadline, init_cost, propose,
                              graph, suspects, init_label_share, cameras, batch))
+        for step, seconds in result.timings.items():
+            spent[step] = spent.get(step, 0.0) + seconds
         if best is None or result.energy < best.energy:
             best = result
     assert best is not None
-    return best
+    return best if restarts == 1 else dataclasses.replace(best, timings=spent)
 
 
 def _run(steps: Generator[object, None, _T]) -> _T:
