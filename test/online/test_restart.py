@@ -18,7 +18,7 @@ from pearl_ros.core.config import PearlConfig, SolverSettings
 from pearl_ros.core.metrics import misclassification
 from pearl_ros.datasets import kt3dmoseg
 from pearl_ros.online.config import OnlineConfig
-from pearl_ros.online.segmenter import OnlineSegmenter, temporal_cost
+from pearl_ros.online.segmenter import RESTART_ROOM, OnlineSegmenter, check_room, temporal_cost
 
 
 def _brute_temporal(labels: np.ndarray, prior: np.ndarray, cost: float) -> float:
@@ -54,6 +54,29 @@ def test_the_temporal_cost_counts_only_points_with_a_prior_segment() -> None:
     assert temporal_cost(np.array([2, 2, 0, 0, 1, 1]), prior, 3.0) == 0.0
     assert temporal_cost(np.full(6, -1), prior, 3.0) == 3.0 * 5
     assert temporal_cost(np.array([0, 0, 0, 0, 0, 0]), np.full(6, -1), 3.0) == 0.0
+
+
+def test_without_a_budget_every_one_motion_frame_with_proposals_is_checked() -> None:
+    assert check_room(True, None, 5.0, 100.0, None) == (True, None)
+    # Frames without proposals are checked only for a check put off to them.
+    assert check_room(False, None, 5.0, 100.0, None) == (False, None)
+
+
+def test_a_check_the_budget_has_no_room_for_is_put_off_to_the_next_frame() -> None:
+    fit_seconds, now = 0.004, 10.0
+    room = RESTART_ROOM * fit_seconds
+    # Room for it: it runs now, nothing is put off.
+    assert check_room(True, None, fit_seconds, now, now + room + 1e-4) == (True, None)
+    # No room: put off, keeping free the room this frame asked for.
+    run, due = check_room(True, None, fit_seconds, now, now + room - 1e-4)
+    assert not run and due == pytest.approx(room)
+    # The next frame (no proposals, a lighter fit) runs it where that room is left ...
+    later = now + 0.033
+    assert check_room(False, due, 0.001, later, later + room + 1e-4) == (True, None)
+    # ... and drops it where it is not: a check is put off once.
+    assert check_room(False, due, 0.001, later, later + room - 1e-4) == (False, None)
+    # A next frame with proposals asks its own room, twice its own fit's.
+    assert check_room(True, due, 0.001, later, later + 2.5 * 0.001) == (True, None)
 
 
 def _stream_errors(root: Path, clip: str, restart: int, seed: int) -> list[float]:
