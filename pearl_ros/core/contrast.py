@@ -23,6 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from pearl_ros.core.config import SolverSettings, default_solver
+from pearl_ros.core.parallel import eigh_batch, worthwhile
 
 
 def patch_residuals(data: np.ndarray, edges: np.ndarray, neighbours: np.ndarray,
@@ -91,7 +92,7 @@ def local_subspaces(data: np.ndarray, neighbours: np.ndarray,
     centred = (points - mean[:, None, :]) * member[:, :, None]  # rows left out are zero
     # Principal directions from each patch's k x k Gram matrix (cheaper than an SVD of the
     # patch): with G = C C^T = U S^2 U^T, the directions are S^-1 U^T C.
-    values, vectors = np.linalg.eigh(centred @ np.transpose(centred, (0, 2, 1)))
+    values, vectors = eigh_batch(centred @ np.transpose(centred, (0, 2, 1)), worthwhile(n))
     top = vectors[:, :, ::-1][:, :, :dim]  # (N, k, <=3), largest first
     lengths = np.sqrt(np.maximum(values[:, ::-1][:, :dim], 0.0))
     basis = np.einsum('nkj,nkd->njd', top, centred)

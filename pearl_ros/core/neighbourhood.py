@@ -16,6 +16,7 @@ from pearl_ros.core.contrast import (
 )
 from pearl_ros.core.errors import InputError
 from pearl_ros.core.models import get_model
+from pearl_ros.core.parallel import in_background, worthwhile
 
 
 @dataclass(frozen=True)
@@ -165,15 +166,21 @@ def neighbourhood(tracks: np.ndarray, ids: np.ndarray | None = None,
         ids = np.asarray(ids, dtype=np.int64)
         if ids.shape != (tracks.shape[1],):
             raise InputError(f'ids must have shape ({tracks.shape[1]},), got {ids.shape}')
-    if previous is not None and previous.ids is not None and ids is not None \
-            and np.array_equal(previous.ids, ids):
+    reuse = previous is not None and previous.ids is not None and ids is not None \
+        and np.array_equal(previous.ids, ids)
+    if previous is not None and reuse:
         edges, neighbours = previous.edges, previous.neighbours
         triangulation = previous.triangulation
     else:
         anchor = tracks[-1]
-        edges, triangulation = _triangulate(anchor)
+        # The triangulation depends on nothing else here: it runs beside the rest.
+        triangulated = in_background(_triangulate, anchor) if worthwhile(anchor.shape[0]) \
+            else None
         neighbours = nearest_neighbours(anchor, settings.image_neighbours)
     subspaces = local_subspaces(trajectories, neighbours, settings)
+    if not reuse:
+        edges, triangulation = (triangulated.result() if triangulated is not None
+                                else _triangulate(anchor))
     return Neighbourhood(edges, neighbours, subspace_misses(trajectories, subspaces, edges), ids,
                          subspaces, triangulation)
 
