@@ -3,15 +3,18 @@
 A frame's neighbourhood (:func:`pearl_ros.core.neighbourhood.neighbourhood`) is a Delaunay
 triangulation (qhull), a k-d tree query and a batch of small eigendecompositions (LAPACK): all
 three release the GIL while they compute, and the triangulation does not depend on the other
-two. On a robot's computer the segmenter otherwise keeps one core busy while the others wait
-for the next frame. The work goes to one worker thread, shared by the process, in pieces whose
-results are the same bit for bit as when they run in turn: only who computes them changes.
+two. Where a core is idle, the work goes to one worker thread, shared by the process, in pieces
+whose results are the same bit for bit as when they run in turn: only who computes them
+changes. Where every core is busy (other nodes, or ``pearl_bench --jobs``), handing a piece
+over only adds the wait for a core: the pieces then run in turn.
 """
 
 from __future__ import annotations
 
+import math
 import os
 import threading
+import time
 from collections.abc import Callable
 from concurrent.futures import Future, ThreadPoolExecutor
 from typing import TypeVar
@@ -24,13 +27,60 @@ _T = TypeVar('_T')
 # waiting for it costs some 50-100 microseconds, what the pieces of 150 points cost.
 PARALLEL_MIN_POINTS = 200
 
+# Seconds between two readings of how busy the machine is.
+IDLE_EVERY_S = 1.0
+# The second thread is used where at least this many cores' worth of time went idle since the
+# last reading (this process's own work counts as busy).
+IDLE_MARGIN = 0.5
+
 _lock = threading.Lock()
 _pool: ThreadPoolExecutor | None = None
+# When the machine was last read (monotonic s), its idle and total CPU time then (jiffies,
+# /proc/stat) and whether a core was idle over the interval before.
+_idle: tuple[float, int, int, bool] = (-math.inf, 0, 0, False)
 
 
 def worthwhile(num_points: int) -> bool:
-    """Whether the work of ``num_points`` points is worth a second thread."""
-    return num_points >= PARALLEL_MIN_POINTS
+    """Whether the work of ``num_points`` points is worth a second thread: enough points, and
+    a core idle (:func:`idle_core`)."""
+    return num_points >= PARALLEL_MIN_POINTS and idle_core()
+
+
+def idle_core() -> bool:
+    """Whether this machine has a core to spare: ``IDLE_MARGIN`` cores' worth of its time idle
+    since the last reading (``/proc/stat``), read at most every ``IDLE_EVERY_S`` seconds. On
+    the first reading, or without ``/proc/stat``, the 1-minute load average below the cores
+    by ``IDLE_MARGIN`` (without either, any second core counts as idle)."""
+    global _idle
+    now = time.monotonic()
+    read_at, idle_then, total_then, idle = _idle
+    if now - read_at < IDLE_EVERY_S:
+        return idle
+    cores = os.cpu_count() or 1
+    times = _cpu_times()
+    if times is not None and total_then and times[1] > total_then:
+        spare = cores * (times[0] - idle_then) / (times[1] - total_then)
+    else:
+        try:
+            spare = cores - os.getloadavg()[0]
+        except (AttributeError, OSError):
+            spare = cores - 1.0
+    idle = cores >= 2 and spare > IDLE_MARGIN
+    _idle = (now, *(times or (0, 0)), idle)
+    return idle
+
+
+def _cpu_times() -> tuple[int, int] | None:
+    """The machine's idle and total CPU time so far (jiffies, every core), or None."""
+    try:
+        with open('/proc/stat', 'rb') as stat:
+            fields = stat.readline().split()
+    except OSError:
+        return None
+    if len(fields) < 5 or fields[0] != b'cpu':
+        return None
+    values = [int(value) for value in fields[1:]]
+    return values[3] + (values[4] if len(values) > 4 else 0), sum(values[:8])
 
 
 def in_background(func: Callable[..., _T], *args: object) -> Future[_T]:

@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import multiprocessing
+import os
+import time
 
 import numpy as np
 import pytest
@@ -46,6 +48,7 @@ def test_a_neighbourhood_built_on_two_threads_equals_one_built_in_turn(
     monkeypatch.setattr(parallel, 'PARALLEL_MIN_POINTS', 10**9)
     alone = neighbourhood(tracks)
     monkeypatch.setattr(parallel, 'PARALLEL_MIN_POINTS', 1)
+    monkeypatch.setattr(parallel, 'idle_core', lambda: True)
     assert parallel.worthwhile(400)
     shared = neighbourhood(tracks)
     assert np.array_equal(alone.edges, shared.edges)
@@ -58,11 +61,40 @@ def _child_misses(queue: multiprocessing.Queue) -> None:  # type: ignore[type-ar
     queue.put(neighbourhood(_tracks(400, 0)).misses)
 
 
-def test_a_forked_child_gets_a_worker_of_its_own() -> None:
+def test_the_second_thread_is_used_only_where_a_core_is_idle() -> None:
+    # Oracle: /proc/stat's idle time over the cores, read around the segmenter's own reading.
+    before = parallel._cpu_times()
+    if before is None:
+        pytest.skip('no /proc/stat on this platform')
+    parallel.idle_core()  # a first reading, to measure from
+    first = parallel._idle
+    spin_until = time.monotonic() + parallel.IDLE_EVERY_S + 0.2
+    while time.monotonic() < spin_until:  # keep one core busy meanwhile
+        pass
+    idle = parallel.idle_core()
+    after = parallel._cpu_times()
+    assert after is not None and after[1] > first[2]
+    cores = os.cpu_count() or 1
+    spare = cores * (after[0] - first[1]) / (after[1] - first[2])
+    # Its interval ended just before ours: the spare time of both is within a few jiffies.
+    assert idle == (cores >= 2 and spare > parallel.IDLE_MARGIN) or abs(
+        spare - parallel.IDLE_MARGIN) < 0.1
+    # Few points are never worth it.
+    assert not parallel.worthwhile(parallel.PARALLEL_MIN_POINTS - 1)
+
+
+def test_a_machine_with_one_core_never_hands_work_over(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setattr(os, 'cpu_count', lambda: 1)
+    monkeypatch.setattr(parallel, '_idle', (-float('inf'), 0, 0, True))
+    assert not parallel.idle_core()
+
+
+def test_a_forked_child_gets_a_worker_of_its_own(monkeypatch: pytest.MonkeyPatch) -> None:
     # The parent's worker thread does not exist in a forked child (pearl_bench --jobs forks):
     # the child's neighbourhood must still be built, and be the parent's.
     if 'fork' not in multiprocessing.get_all_start_methods():
         pytest.skip('no fork on this platform')
+    monkeypatch.setattr(parallel, 'idle_core', lambda: True)  # the child inherits it
     want = neighbourhood(_tracks(400, 0)).misses  # the parent's worker now exists
     context = multiprocessing.get_context('fork')
     queue = context.Queue()
