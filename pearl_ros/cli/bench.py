@@ -495,6 +495,10 @@ def _add_latency_parser(commands: Any) -> None:
     latency.add_argument('--cameras', action='store_true',
                          help="give the segmenter each frame's true camera, as a robot's "
                          'odometry would (pose_topic; robot streams only)')
+    latency.add_argument('--wall-clock', action='store_true',
+                         help='sleep until each frame arrives, so that the machine idles '
+                         'between frames as behind a live camera (slower than the default '
+                         'simulated clock, which runs the frames back to back)')
     latency.add_argument('--memory', action='store_true',
                          help='also measure the peak MiB the segmenter allocates (one more '
                          'unpaced run per stream, under tracemalloc)')
@@ -567,11 +571,12 @@ def _latency(args: argparse.Namespace) -> int:
                 rows += bench_stream.latency_rows(
                     features, window, args.frames, config, online, scene, rate_hz=rate,
                     queue=args.queue, stream=args.stream, memory=args.memory,
-                    cameras=args.cameras)
+                    cameras=args.cameras, wall_clock=args.wall_clock)
     sys.stderr.write('\n')
     title = (f'Online PEaRL latency, {args.stream} streams of {args.frames} frames paced at '
              f'their rate, queue {args.queue}, budget {online.budget_ms:g} ms'
-             + (', true cameras given' if args.cameras else ''))
+             + (', true cameras given' if args.cameras else '')
+             + (', in real time' if args.wall_clock else ''))
     if overrides:
         title += ', ' + ', '.join(f'{k}={v}' for k, v in overrides.items())
     print(bench_stream.format_latency(rows, title))

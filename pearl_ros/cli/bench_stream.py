@@ -170,14 +170,17 @@ class Schedule:
     dropped: tuple[int, ...]
 
 
-def paced(arrivals_s: Sequence[float], work: Callable[[int], float], queue: str = 'all'
-          ) -> Schedule:
+def paced(arrivals_s: Sequence[float], work: Callable[[int], float], queue: str = 'all',
+          wall_clock: bool = False) -> Schedule:
     """Run frames that arrive at ``arrivals_s`` through one worker, on a simulated clock.
 
     Frame ``i`` is processed by ``work(i)``, which returns how long it took (s); the worker
     starts it at the later of its arrival and the end of the previous frame, so a frame's
     latency (finish minus arrival) includes the time it waited behind slower ones, as on a
-    robot. Nothing sleeps: the clock advances by the durations ``work`` reports.
+    robot. Nothing sleeps: the clock advances by the durations ``work`` reports. With
+    ``wall_clock`` the worker sleeps until each frame's start comes in real time too, so that
+    the machine idles between frames as it does behind a live camera (cold caches, sleeping
+    cores); the latencies are still the simulated clock's, from the durations ``work`` reports.
 
     Parameters
     ----------
@@ -194,6 +197,7 @@ def paced(arrivals_s: Sequence[float], work: Callable[[int], float], queue: str 
     dropped: list[int] = []
     free = -math.inf  # when the worker is next free
     i, count = 0, len(arrivals_s)
+    origin = time.perf_counter() - (arrivals_s[0] if count else 0.0)
     while i < count:
         begin = max(arrivals_s[i], free)
         take = i
@@ -201,6 +205,9 @@ def paced(arrivals_s: Sequence[float], work: Callable[[int], float], queue: str 
             while take + 1 < count and arrivals_s[take + 1] <= begin:
                 take += 1
             dropped.extend(range(i, take))
+        if wall_clock:
+            while (ahead := origin + begin - time.perf_counter()) > 0:
+                time.sleep(ahead)
         free = begin + work(take)
         processed.append(take)
         start.append(begin)
@@ -236,9 +243,10 @@ class LatencyRow:
 def latency_rows(features: int, window: int, frames: int, config: PearlConfig,
                  online: OnlineConfig, seed: int = 0, *, rate_hz: float = 30.0,
                  queue: str = 'all', stream: str = 'robot', memory: bool = False,
-                 cameras: bool = False) -> list[LatencyRow]:
-    """The floor and segmenter rows of one stream, paced at ``rate_hz`` (:func:`paced`); with
-    ``cameras`` (robot streams) each frame comes with its true camera, as odometry gives it.
+                 cameras: bool = False, wall_clock: bool = False) -> list[LatencyRow]:
+    """The floor and segmenter rows of one stream, paced at ``rate_hz`` (:func:`paced`, in
+    real time too with ``wall_clock``); with ``cameras`` (robot streams) each frame comes with
+    its true camera, as odometry gives it.
 
     With ``memory``, the segmenter runs once more, unpaced, under ``tracemalloc`` for its peak
     allocation (not while timing: its hooks slow allocation down).
@@ -272,7 +280,7 @@ def latency_rows(features: int, window: int, frames: int, config: PearlConfig,
         peak = _peak_mib(OnlineSegmenter(config, online), frames_, known)
     rows = []
     for kind, work in (('floor', floor), ('pearl', segment)):
-        run = paced(arrivals, work, queue)
+        run = paced(arrivals, work, queue, wall_clock)
         stats = latency_stats([1e3 * s for s in run.latency_s], len(frames_), 1e3 / rate_hz)
         mean, final = (accuracy(labels, [f.truth for f in frames_]) if kind == 'pearl'
                        else (math.nan, math.nan))

@@ -4,6 +4,7 @@ the paced table and ``--profile``. No assertion on a measured time."""
 from __future__ import annotations
 
 import math
+import time
 
 import numpy as np
 import pytest
@@ -64,6 +65,24 @@ def test_a_long_frame_under_queue_newest_drops_everything_that_arrived_meanwhile
     # The same durations with every frame kept: the backlog of 9 s frames delays frame 5.
     work, calls = durations(18 / 32, 9, 9, 9, 1 / 32, 12 / 32)
     assert paced(ARRIVALS, work, 'all').finish_s[-1] == 18 / 32 + 27 + 13 / 32
+
+
+def test_on_the_wall_clock_the_schedule_is_the_same_and_frames_wait_for_their_time() -> None:
+    # The same hand-worked schedule as on the simulated clock; each frame starts no earlier, in
+    # real time, than its start there (arrivals at 8 Hz: the run lasts 20/32 s or more).
+    began: list[float] = []
+    work, calls = durations(1 / 32, 1 / 32, 1 / 32, 1 / 32, 1 / 32, 1 / 32)
+
+    def timed(i: int) -> float:
+        began.append(time.perf_counter())
+        return work(i)
+
+    origin = time.perf_counter()
+    run = paced(ARRIVALS, timed, 'all', wall_clock=True)
+    assert run.latency_s == tuple(1 / 32 for _ in ARRIVALS)
+    assert run.start_s == tuple(ARRIVALS)
+    assert all(at - origin >= start - 1e-3 for at, start in zip(began, run.start_s, strict=True))
+    assert began[-1] - origin >= ARRIVALS[-1] - 1e-3
 
 
 def test_an_unknown_queue_policy_is_refused() -> None:

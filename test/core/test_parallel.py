@@ -83,6 +83,23 @@ def test_the_second_thread_is_used_only_where_a_core_is_idle() -> None:
     assert not parallel.worthwhile(parallel.PARALLEL_MIN_POINTS - 1)
 
 
+def test_the_worker_is_kept_off_the_callers_core() -> None:
+    # Oracle: the kernel's own affinity mask of the worker thread, after a hand-over from a
+    # caller pinned to one core.
+    if not hasattr(os, 'sched_setaffinity') or len(os.sched_getaffinity(0)) < 2:
+        pytest.skip('needs a second core and thread affinities (Linux)')
+    parallel.in_background(int).result()  # the worker exists
+    mine = os.sched_getaffinity(0)
+    for core in sorted(mine)[:2]:
+        os.sched_setaffinity(0, {core})
+        try:
+            assert parallel.in_background(int).result() == 0
+            worker = os.sched_getaffinity(parallel._worker_id)
+        finally:
+            os.sched_setaffinity(0, mine)
+        assert core not in worker and worker
+
+
 def test_a_machine_with_one_core_never_hands_work_over(monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setattr(os, 'cpu_count', lambda: 1)
     monkeypatch.setattr(parallel, '_idle', (-float('inf'), 0, 0, True))
