@@ -505,7 +505,8 @@ def _add_latency_parser(commands: Any) -> None:
     latency.add_argument('--profile', action='store_true',
                          help='profile one size (one --features, one --windows) with cProfile '
                          'over the frames after the window fills, instead of timing: top 25 '
-                         'functions by cumulative and by own time')
+                         'functions by cumulative and by own time (of the calling thread: '
+                         'what the neighbourhood hands to its second thread shows as waits)')
     latency.add_argument('--set', action='append', default=[], metavar='NAME=VALUE',
                          help='override a PearlConfig or OnlineConfig field (repeatable)')
 
