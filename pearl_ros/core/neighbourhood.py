@@ -166,10 +166,10 @@ def neighbourhood(tracks: np.ndarray, ids: np.ndarray | None = None,
         ids = np.asarray(ids, dtype=np.int64)
         if ids.shape != (tracks.shape[1],):
             raise InputError(f'ids must have shape ({tracks.shape[1]},), got {ids.shape}')
-    reuse = previous is not None and previous.ids is not None and ids is not None \
-        and np.array_equal(previous.ids, ids)
-    if previous is not None and reuse:
+    if previous is not None and previous.ids is not None and ids is not None \
+            and np.array_equal(previous.ids, ids):
         edges, neighbours = previous.edges, previous.neighbours
+        subspaces = local_subspaces(trajectories, neighbours, settings)
         triangulation = previous.triangulation
     else:
         anchor = tracks[-1]
@@ -177,8 +177,7 @@ def neighbourhood(tracks: np.ndarray, ids: np.ndarray | None = None,
         triangulated = in_background(_triangulate, anchor) if worthwhile(anchor.shape[0]) \
             else None
         neighbours = nearest_neighbours(anchor, settings.image_neighbours)
-    subspaces = local_subspaces(trajectories, neighbours, settings)
-    if not reuse:
+        subspaces = local_subspaces(trajectories, neighbours, settings)
         edges, triangulation = (triangulated.result() if triangulated is not None
                                 else _triangulate(anchor))
     return Neighbourhood(edges, neighbours, subspace_misses(trajectories, subspaces, edges), ids,

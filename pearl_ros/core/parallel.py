@@ -39,6 +39,9 @@ _pool: ThreadPoolExecutor | None = None
 _worker_id: int | None = None  # the worker thread's native id
 _allowed: set[int] = set()  # the cores the worker could run on when it started
 _steered: set[int] = set()  # the cores it was last allowed
+# When the machine was last read (monotonic s), its idle and total CPU time then (jiffies,
+# /proc/stat) and whether a core was idle over the interval before.
+_idle: tuple[float, int, int, bool] = (-math.inf, 0, 0, False)
 
 
 def _find_getcpu() -> Callable[[], int] | None:
@@ -55,9 +58,6 @@ def _find_getcpu() -> Callable[[], int] | None:
 
 
 _getcpu = _find_getcpu()
-# When the machine was last read (monotonic s), its idle and total CPU time then (jiffies,
-# /proc/stat) and whether a core was idle over the interval before.
-_idle: tuple[float, int, int, bool] = (-math.inf, 0, 0, False)
 
 
 def worthwhile(num_points: int) -> bool:

@@ -441,20 +441,19 @@ class OnlineSegmenter:
         # room for it; where it has none, on the next frame (most often one without fresh
         # proposals, whose warm fit is the lighter) if the room is there.
         fitted_at = time.perf_counter()
-        run = False
         if init is not None and result.num_models <= config.solver.restart_motions:
             run, self._check_due = check_room(propose, self._check_due, fitted_at - began,
                                               fitted_at, deadline)
+            if run:
+                cold = fit(tracks, config, self._rng, init=None, deadline=deadline,
+                           init_cost=0.0, propose=True, graph=graph, suspects=suspects,
+                           init_label_share=self.online.continued_label_cost,
+                           cameras=cameras, batch=False)
+                moved = temporal_cost(cold.labels, init, self.online.temporal_cost)
+                if cold.energy + moved < result.energy:
+                    result = cold
         else:
             self._check_due = None
-        if run and init is not None:
-            cold = fit(tracks, config, self._rng, init=None, deadline=deadline, init_cost=0.0,
-                       propose=True, graph=graph, suspects=suspects,
-                       init_label_share=self.online.continued_label_cost, cameras=cameras,
-                       batch=False)
-            moved = temporal_cost(cold.labels, init, self.online.temporal_cost)
-            if cold.energy + moved < result.energy:
-                result = cold
         self._overran(deadline, began, time.perf_counter())
         per_feature = result.energy / max(tracks.shape[1], 1)
         if propose:
