@@ -378,10 +378,11 @@ def test_a_budgeted_cold_start_draws_what_the_unbudgeted_one_draws(monkeypatch):
 
 
 def test_a_cold_start_in_slices_ends_with_the_labels_of_the_unbudgeted_one(monkeypatch):
-    # With no cap on the budgets it may take, the budgeted cold start is the unbudgeted cold
-    # fit of the same frame run a millisecond's worth a frame: however its steps fall into
-    # frames, when it is done the features still seen carry the labels the unbudgeted
-    # segmenter gave them on that frame (up to the numbers, which follow the frames before).
+    # With no cap on the budgets it may take, the budgeted cold start (a cold fit of the
+    # window of COLD_START_FRAMES frames, a millisecond's worth a frame) finds what the
+    # unbudgeted segmenter's first fit finds: however its steps fall into frames, when it is
+    # done the features still seen carry the partition the unbudgeted segmenter gave them on
+    # its first fit (up to the numbers).
     from pearl_ros.online import segmenter as module
 
     monkeypatch.setattr(module, 'COLD_BUDGETS', 1e15)
@@ -405,8 +406,9 @@ def test_a_cold_start_in_slices_ends_with_the_labels_of_the_unbudgeted_one(monke
 
 def test_a_budgeted_cold_start_answers_its_labels_so_far_until_its_fit_is_done(monkeypatch):
     # A budget far below any step, no cap on the budgets: the cold fit runs one step a frame.
-    # Before its first move every feature is -1; from then on the tracks it fits carry its
-    # labelling so far, and from the frame after it is done the frames start warm.
+    # It begins once the window holds COLD_START_FRAMES frames, in the affine family; before
+    # its first move every feature is -1; from then on the tracks it fits carry its labelling
+    # so far, and from the frame after it is done the frames start warm.
     from pearl_ros.online import segmenter as module
 
     monkeypatch.setattr(module, 'COLD_BUDGETS', 1e15)
@@ -415,13 +417,15 @@ def test_a_budgeted_cold_start_answers_its_labels_so_far_until_its_fit_is_done(m
                                                                         budget_ms=1e-6)))
     first = next(t for t, r in enumerate(results) if r.motions)
     done = next(t for t, r in enumerate(results) if r.warm) - 1
-    assert 1 < first < done  # the first fit (two frames) took several frames
+    begun = module.COLD_START_FRAMES - 1  # the frame it begins on
+    assert begun < first < done  # the first fit took several frames
     for r in results[:first]:
         assert np.all(r.labels == OUTLIER) and r.model == '' and r.frames == 0 and not r.warm
     for r, frame in zip(results[first:done + 1], frames[first:done + 1], strict=True):
-        assert r.model == 'fundamental' and r.frames == 2 and not r.warm
-        # Tracks born since frame 1 wait for the warm frames; the fit's tracks have motions.
-        born = ~np.isin(frame.ids, frames[1].ids)
+        assert r.model == 'affine' and r.frames == module.COLD_START_FRAMES and not r.warm
+        # Tracks born since the frame it began on wait for the warm frames; the fit's tracks
+        # have motions.
+        born = ~np.isin(frame.ids, frames[begun].ids)
         assert r.motions >= 1 and np.all(r.labels[born] == OUTLIER)
     assert all(r.warm for r in results[done + 1:])
     assert results[-1].motions == 2

@@ -195,7 +195,7 @@ def test_stamp_going_back_empties_the_window_and_is_logged_once(ros: Ros) -> Non
 
 
 def test_message_larger_than_max_features_is_subsampled_by_id(ros: Ros) -> None:
-    frames = list(read_feature_frames(BAG))[:4]
+    frames = list(read_feature_frames(BAG))[:6]
     _, probe = _start(ros, max_features=40)
     kept = []
     rng = np.random.default_rng(3)
@@ -210,8 +210,8 @@ def test_message_larger_than_max_features_is_subsampled_by_id(ros: Ros) -> None:
     # The last frames are fitted: at most 40 features labelled, always the same ones.
     assert 0 < len(kept[-1]) <= 40
     assert kept[-1] == kept[-2]
-    values = probe.diagnostics_where(lambda v: v['messages processed'] == '4')
-    assert values['capped messages'] == '4'
+    values = probe.diagnostics_where(lambda v: v['messages processed'] == '6')
+    assert values['capped messages'] == '6'
     assert (values['features'], values['features segmented']) == ('153', '40')
     assert ros.spin_until(lambda: probe.warnings('max_features 40'))
     assert len(probe.warnings('max_features 40')) == 1
