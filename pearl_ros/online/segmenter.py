@@ -59,9 +59,10 @@ _TWO_VIEW = ('fundamental', 'homography')
 COLD_BUDGETS = 8
 # A budgeted cold start of a multi-frame model family begins once the window holds this many
 # frames, in that family, rather than as a fundamental matrix between the first two frames:
-# the frames before are answered -1. Its labels come about as early, as a fit of the stream's
-# own family they carry over into the warm frames (Hopkins155 stream at the budget, seeds 0-2,
-# final / second half 5.44 / 5.88% against 5.64 / 6.12% from two frames; docs/experiments.md).
+# the frames before are answered -1 (a window of fewer frames: once it is full). Its labels
+# come about as early, as a fit of the stream's own family they carry over into the warm frames
+# (Hopkins155 stream at the budget, seeds 0-2, final / second half 5.44 / 5.88% against 5.64 /
+# 6.12% from two frames; docs/experiments.md).
 COLD_START_FRAMES = 4
 # With cameras: a young track whose static residual is within this many times the static
 # world's noise level is given the static world's motion (3: a track of it under Gaussian
@@ -281,13 +282,12 @@ class OnlineSegmenter:
             # Every spanning track, as a view (no copy), unless max_fitted chose some.
             pick = slice(None) if chosen is None else chosen
             warm = self.online.warm_start and bool(np.any(prior[pick] != OUTLIER))
-            if (self._cold is None and not warm and self.online.warm_start
-                    and self.online.budget_ms > 0 and self.config.model not in _TWO_VIEW
-                    and len(self._window) < COLD_START_FRAMES):
+            sliced = not warm and self.online.warm_start and self.online.budget_ms > 0
+            if (sliced and self._cold is None and self.config.model not in _TWO_VIEW
+                    and len(self._window) < min(COLD_START_FRAMES, self.online.window)):
                 return self._answer(keys, motion_labels, seen, ids.size, stamp_ns, 0, 0, '',
                                     reset, False, start)
-            if self._cold is not None or (not warm and self.online.warm_start
-                                          and self.online.budget_ms > 0):
+            if self._cold is not None or sliced:
                 return self._cold_slice(tracks[:, pick], fitted_keys[pick], model_name, keys,
                                         seen, ids.size, stamp_ns, reset, start, cameras)
             result, config = self._fit(tracks[:, pick], fitted_keys[pick], model_name,

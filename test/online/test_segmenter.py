@@ -432,6 +432,22 @@ def test_a_budgeted_cold_start_answers_its_labels_so_far_until_its_fit_is_done(m
     assert misclassification(results[-1].labels, frames[-1].truth) < 0.05
 
 
+@pytest.mark.parametrize('window', [2, 3])
+def test_a_window_shorter_than_the_cold_start_s_begins_it_once_full(window):
+    # A budgeted cold start waits for COLD_START_FRAMES frames, or for a full window where the
+    # window holds fewer: it begins on the first frame whose window is full, over that window.
+    from pearl_ros.online import segmenter as module
+
+    assert window < module.COLD_START_FRAMES
+    frames = list(synthetic_stream(150, 30, (BodySpec(0.4),), seed=3))
+    _, results = run(frames, OnlineSegmenter(online=dataclasses.replace(
+        UNTIMED, window=window, budget_ms=1e-6)))
+    first = next(t for t, r in enumerate(results) if r.motions)
+    assert first >= window - 1 and results[first].frames == window
+    assert results[-1].motions == 2
+    assert misclassification(results[-1].labels, frames[-1].truth) < 0.05
+
+
 def _spy_on_deadlines(monkeypatch, late_first=0.0):
     """The segmenter's warm fits, spied on: the list of the seconds each had left until its
     deadline when it began; the first one ends ``late_first`` s past its deadline."""
