@@ -35,6 +35,7 @@ from pearl_ros.pipeline.replay import (
     replay,
     write_stats,
 )
+from pearl_ros.pipeline.threads import limit_blas_threads
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -96,6 +97,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         except SystemExit as done:  # --help
             return int(done.code or 0)
         settings = settings_from_args(args)
+        limit_blas_threads()  # as pearl_node runs: the segmenter's second thread needs the core
         if args.stats is not None:
             check_stats_path(args.stats, args.output)
         show = args.progress == 'on' or (args.progress == 'auto' and sys.stderr.isatty())

@@ -43,6 +43,7 @@ from pearl_ros.cli.progress import ProgressBar
 from pearl_ros.core.errors import InputError, PearlError, UsageParser, one_line
 from pearl_ros.pipeline import settings as pipeline_settings
 from pearl_ros.pipeline.messages import Labelled, MessagePipeline
+from pearl_ros.pipeline.threads import limit_blas_threads
 from pearl_ros.tracking import image as image_io
 from pearl_ros.tracking.draw import Overlay
 from pearl_ros.tracking.tracker import FeatureTracker, Tracks
@@ -263,6 +264,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         except SystemExit as done:  # --help
             return int(done.code or 0)
         show = args.progress == 'on' or (args.progress == 'auto' and sys.stderr.isatty())
+        limit_blas_threads()  # as pearl_node runs: the segmenter's second thread needs the core
         bar = ProgressBar(sys.stderr, 'frames') if show else None
         stats = run(args, bar)
     except (PearlError, OSError, cv2.error) as err:

@@ -44,6 +44,7 @@ from pearl_ros.online.config import setting_values
 from pearl_ros.pipeline.messages import Labelled, MessagePipeline, Skipped
 from pearl_ros.pipeline.poses import CAMERA_INFO, POSE_TYPES
 from pearl_ros.pipeline.settings import PIPELINE_NAMES, Settings
+from pearl_ros.pipeline.threads import limit_blas_threads
 
 INPUT_TOPIC = '/feature_tracker/feature'
 OUTPUT_TOPIC = '/motion_labels'
@@ -350,8 +351,10 @@ def replay_throughput(
     Rows: ``bag``, ``frames``, ``features`` (mean per frame), ``skipped``, ``wall_s``,
     ``fps`` (end to end, reading and writing included), ``segmenter_fps`` (time inside the
     segmenter only), ``latency_p50_ms``, ``latency_p99_ms``, ``latency_max_ms``.
-    A benchmark, not a test: the figures depend on the machine and on ``budget_ms``.
+    A benchmark, not a test: the figures depend on the machine and on ``budget_ms``. It sets
+    BLAS to one thread, as ``pearl_replay`` runs (:func:`limit_blas_threads`).
     """
+    limit_blas_threads()
     rows = []
     for path in paths:
         path = Path(path)

@@ -1,5 +1,5 @@
 """Without a budget, the same frames and seed give the same labels on any machine: whatever
-its BLAS thread count (a replay runs OpenBLAS's default, one thread a core; the node runs one)
+its BLAS thread count (the programs run one, a user may choose one a core)
 and whether the frame's neighbourhood went to a second thread (a core idle or not)."""
 
 from __future__ import annotations
