@@ -24,6 +24,7 @@ import numpy as np
 
 from pearl_ros import scoring
 from pearl_ros.core.errors import InputError, PearlError, UsageParser
+from pearl_ros.pipeline.threads import limit_blas_threads
 
 _TRUTH_TOPIC = '/ground_truth/labels'  # read_ground_truth's default topic
 
@@ -134,6 +135,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument('--seed', type=int, default=0, help='random seed (default 0)')
     try:
         args = parser.parse_args(argv)
+        limit_blas_threads()  # as pearl_node runs: the segmenter's second thread needs the core
         for k, bag in enumerate(args.bags):
             if k:
                 print()

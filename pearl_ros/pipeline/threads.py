@@ -8,11 +8,12 @@ with one thread (BENCHMARKS.md, "Node latency and replay throughput"): a core th
 the estimator and the node's own executor need. numpy and scipy each load their own OpenBLAS;
 both are set at runtime, after import, through OpenBLAS's own ``set_num_threads``.
 
-Every program sets one thread: the live ones (``pearl_node``, ``pearl_tracker``), the offline
-ones (``pearl_replay``, ``pearl_video``) and the benchmarks that measure them. Offline, alone on
-the machine, the spinning thread takes the core that the segmenter's own second thread
-(:mod:`pearl_ros.core.parallel`) would use: with it, ``bags/cars2`` replayed at 72-81 frames/s
-against 91-93 with one thread (BENCHMARKS.md, "Node latency and replay throughput").
+Every program that segments sets one thread: the live ones (``pearl_node``, ``pearl_tracker``),
+the offline ones (``pearl_replay``, ``pearl_video``, ``pearl_segment_bag``) and the
+benchmarks. Offline, alone on the machine, the spinning thread takes the core that the
+segmenter's own second thread (:mod:`pearl_ros.core.parallel`) would use: with it,
+``bags/cars2`` replayed at 72-81 frames/s against 91-93 with one thread (BENCHMARKS.md, "Node
+latency and replay throughput").
 """
 
 from __future__ import annotations

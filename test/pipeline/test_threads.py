@@ -61,6 +61,9 @@ before = sorted(blas_threads().values())
 if sys.argv[1] == 'replay':
     from pearl_ros.cli.replay import main
     status = main([sys.argv[2], '-o', sys.argv[3], '--set', 'budget_ms=0'])
+elif sys.argv[1] == 'segment_bag':
+    from pearl_ros.cli.segment_bag import main
+    status = main([sys.argv[2]])
 else:
     import cv2
     from pearl_ros.tracking.render import render_scene
@@ -87,7 +90,7 @@ def _program(name: str, folder: Path, **env: str) -> dict:
     return result
 
 
-@pytest.mark.parametrize('name', ['replay', 'video'])
+@pytest.mark.parametrize('name', ['replay', 'segment_bag', 'video'])
 def test_the_offline_programs_run_blas_on_one_thread_as_the_node_does(
         name: str, tmp_path: Path) -> None:
     if (os.cpu_count() or 1) < 2:
