@@ -20,7 +20,14 @@ from pathlib import Path
 from typing import Any
 
 from pearl_ros.core.errors import InputError
-from pearl_ros.evaluation.sets import Score, Task, format_summaries, run_task, summarise
+from pearl_ros.evaluation.sets import (
+    Score,
+    Task,
+    format_seed_means,
+    format_summaries,
+    run_task,
+    summarise,
+)
 
 # Where suite looks for each set, below --data.
 SET_FOLDERS = {'hopkins155': 'hopkins155', 'kt3dmoseg': 'kt3dmoseg_dev',
@@ -84,6 +91,9 @@ def add_commands(commands: Any) -> None:
                        '(default: $PEARL_DATA, else ../shared/data)')
     suite.add_argument('--only', nargs='+', metavar='SET', help='run these sets only (names '
                        'as in the table, e.g. adelaidermf_f kt3dmoseg_two)')
+    suite.add_argument('--seeds', nargs='+', type=int, metavar='SEED',
+                       help='run the suite once per seed (in place of --seed): each seed\'s '
+                       'table, then one line per set with each seed\'s mean and their mean')
     common(suite)
 
 
@@ -263,19 +273,38 @@ def suite(args: argparse.Namespace) -> int:
                 Path(__file__).resolve().parents[2].parent / 'shared' / 'data')
     if not data.is_dir():
         raise InputError(f'data folder not found: {data} (give --data or set PEARL_DATA)')
-    items = _suite_items(data, args)
-    if args.only:
-        known = sorted({_dataset_of(i) for i in items})
-        unknown = sorted(set(args.only) - set(known))
-        if unknown:
-            raise InputError(f'unknown set {unknown[0]!r} (known: {", ".join(known)})')
-        items = [i for i in items if _dataset_of(i) in args.only]
+    seeds = args.seeds or [args.seed]
+    if min(seeds) < 0 or len(set(seeds)) < len(seeds):
+        raise InputError(f'--seeds must be distinct and >= 0, got {" ".join(map(str, seeds))}')
+    items: list[tuple[str, Any]] = []
+    owner: list[int] = []  # the seed of each item
+    for seed in seeds:
+        mine = _suite_items(data, argparse.Namespace(**{**vars(args), 'seed': seed}))
+        if args.only:
+            known = sorted({_dataset_of(i) for i in mine})
+            unknown = sorted(set(args.only) - set(known))
+            if unknown:
+                raise InputError(f'unknown set {unknown[0]!r} (known: {", ".join(known)})')
+            mine = [i for i in mine if _dataset_of(i) in args.only]
+        items += mine
+        owner += [seed] * len(mine)
     # The slowest items first, so that the workers finish together.
     order = sorted(range(len(items)), key=lambda i: items[i][0] != 'set')
     start = time.time()
     done = _run(_suite_item, [items[i] for i in order], args.jobs)
     scores = [s for _, s in sorted(zip(order, done, strict=True))]
     overrides, _, online = _configs(args)
-    _report(scores, _title(f'PEaRL suite ({data})', overrides, online)
-            + f', {time.time() - start:.0f} s wall', args.items)
+    title = _title(f'PEaRL suite ({data})', overrides, online)
+    wall = f', {time.time() - start:.0f} s wall'
+    if len(seeds) == 1:
+        _report(scores, title + wall, args.items)
+        return 0
+    per_seed = {}
+    for seed in seeds:
+        mine_scores = [s for s, o in zip(scores, owner, strict=True) if o == seed]
+        _report(mine_scores, f'{title}, seed {seed}', args.items)
+        print()
+        per_seed[seed] = summarise(mine_scores)
+    print(f'{title}, seeds {" ".join(map(str, seeds))}{wall}')
+    print(format_seed_means(per_seed))
     return 0

@@ -281,6 +281,26 @@ def summarise(scores: list[Score]) -> list[Summary]:
     return out
 
 
+def format_seed_means(per_seed: dict[int, list[Summary]]) -> str:
+    """One line per data set over several runs of the suite, one run a seed: each seed's mean
+    misclassification, their mean, and for streams the mean of their ``2nd half %``. A change
+    is judged on the means: one seed's flips move a set by more than most changes do."""
+    seeds = list(per_seed)
+    head = (f'{"set":<22}{"items":>6}' + ''.join(f'{"seed " + str(s):>10}' for s in seeds)
+            + f'{"mean %":>9}{"2nd half %":>12}')
+    lines = [head]
+    for dataset in dict.fromkeys(s.dataset for rows in per_seed.values() for s in rows):
+        rows = [next((s for s in per_seed[seed] if s.dataset == dataset), None)
+                for seed in seeds]
+        found = [s for s in rows if s is not None]
+        errors = ''.join(f'{"-" if s is None else format(s.mean_pct, ".2f"):>10}' for s in rows)
+        half = [s.half_pct for s in found if not math.isnan(s.half_pct)]
+        half_text = format(float(np.mean(half)), '.2f') if half else '-'
+        lines.append(f'{dataset:<22}{found[0].items:>6}{errors}'
+                     f'{float(np.mean([s.mean_pct for s in found])):>9.2f}{half_text:>12}')
+    return '\n'.join(lines)
+
+
 def format_summaries(summaries: list[Summary]) -> str:
     """The suite table: one line per data set. ``2nd half %``: for streams, the mean over
     their items of the misclassification averaged over the second half of the frames;

@@ -240,3 +240,38 @@ def test_a_robot_stream_through_a_lens_and_undistorted_again_is_the_pinhole_stre
         assert np.allclose(undone, uv, atol=1e-6)
     assert main(['synthetic', '--scenes', '0', '--undistort']) == 1
     assert '--undistort needs --lens' in capsys.readouterr().err
+
+
+def test_the_suite_over_several_seeds_gives_each_seeds_mean_and_theirs(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    # Oracle: the suite run once per seed, each run's own table.
+    from pearl_ros.cli.bench_sets import SET_FOLDERS
+
+    # The other sets' files are listed, not read (--only): empty ones will do.
+    for path in (f'{SET_FOLDERS["hopkins155"]}/seqa/seqa_truth.mat',
+                 f'{SET_FOLDERS["kt3dmoseg"]}/Seq001_Clip01_Tracks.mat'):
+        (tmp_path / path).parent.mkdir(parents=True)
+        (tmp_path / path).touch()
+    pairs = tmp_path / SET_FOLDERS['adelaide']
+    pairs.mkdir()
+    _write_pair(pairs / 'boxes.mat', mismatches=40)
+    _write_pair(pairs / 'boxes2.mat', mismatches=60)
+    common = ['suite', '--data', str(tmp_path), '--only', 'adelaidermf_f']
+    alone = []
+    for seed in ('0', '3'):
+        assert main([*common, '--seed', seed]) == 0
+        line = next(x for x in capsys.readouterr().out.splitlines()
+                    if x.startswith('adelaidermf_f'))
+        alone.append(float(line.split()[2]))
+    assert main([*common, '--seeds', '0', '3']) == 0
+    rows = [x.split() for x in capsys.readouterr().out.splitlines()
+            if x.startswith('adelaidermf_f')]
+    # Each seed's own table, then the line of means: items, seed 0, seed 3, their mean, '-'.
+    assert [float(r[2]) for r in rows[:2]] == alone
+    items, first, second, mean, half = rows[2][1:]
+    assert items == '2' and half == '-'
+    assert (float(first), float(second)) == pytest.approx(alone, abs=0.005)
+    assert float(mean) == pytest.approx(np.mean(alone), abs=0.005)
+    assert main([*common, '--seeds', '3', '3']) == 1
+    err = capsys.readouterr().err.strip()
+    assert err.startswith('error:') and '--seeds must be distinct' in err
