@@ -234,6 +234,10 @@ class SolverSettings:
     affine_reference_frames: int = spec(
         30, 'frames at which an affine subspace pays label_cost as configured (its cost '
         'scales with frames / this)', low=1, high=1000000)
+    affine_cost_ceiling: float = spec(
+        1.0, 'most factor on label_cost for an affine subspace, however many frames it spans '
+        '(residuals are per-frame RMS distances, so a longer window does not raise a model\'s '
+        'data gain in proportion); 0 = none', low=0.0, high=1e6)
     fundamental_cost_weight: float = spec(
         0.75, 'factor on label_cost for a fundamental matrix (one epipolar constraint per point '
         'is weaker evidence than a long subspace)', low=0.0, high=100.0)

@@ -14,6 +14,7 @@ from pearl_ros.core.metrics import misclassification
 from pearl_ros.core.models import get_model
 from pearl_ros.core.neighbourhood import neighbourhood
 from pearl_ros.core.pearl import evaluate_segmentation, fit
+from pearl_ros.datasets import hopkins
 
 
 # Motions of 120+ points: with the default label cost, a motion of under ~100 points behind a
@@ -498,3 +499,19 @@ def test_batch_two_view_models_refitted_to_the_same_points_are_not_refitted_agai
             assert counts[batch] < len(calls)
         else:
             assert counts[batch] == len(calls)
+
+
+@pytest.mark.parametrize('name', ['cars9_g12', 'kanatani3'])
+def test_a_long_sequence_pays_no_more_than_the_label_cost_per_motion(hopkins_root, name):
+    # Real data with ground truth: two Hopkins155 sequences of 61 and 100 frames, two motions
+    # each. With the label cost grown in proportion to the frames (no ceiling: two and three
+    # label costs per motion) the energy prefers one motion for both; at most one label cost
+    # per motion (affine_cost_ceiling 1), both motions are found.
+    sequence = hopkins.load_sequence(hopkins_root, name)
+    assert sequence.tracks.shape[0] > 60
+    found = fit(sequence.tracks, rng=0)
+    assert found.num_models == 2
+    assert misclassification(found.labels, sequence.labels) < 0.02
+    grown = fit(sequence.tracks, PearlConfig(solver=SolverSettings(affine_cost_ceiling=0.0)),
+                rng=0)
+    assert grown.num_models == 1

@@ -30,7 +30,7 @@ class AffineSubspace:
     Parameters
     ----------
     settings : SolverSettings, optional
-        ``affine_reference_frames`` sets the label cost weight.
+        ``affine_reference_frames`` and ``affine_cost_ceiling`` set the label cost weight.
     """
 
     name: ClassVar[str] = 'affine'
@@ -39,7 +39,9 @@ class AffineSubspace:
     dim = 3
 
     def __init__(self, settings: SolverSettings | None = None) -> None:
-        self.reference_frames = (settings or default_solver()).affine_reference_frames
+        settings = settings or default_solver()
+        self.reference_frames = settings.affine_reference_frames
+        self.cost_ceiling = settings.affine_cost_ceiling
 
     def data(self, tracks: np.ndarray) -> np.ndarray:
         """Trajectories ``(N, 2F)`` scaled by 1/sqrt(F), so distances are RMS pixels per frame."""
@@ -86,17 +88,22 @@ class AffineSubspace:
         return np.concatenate([mean[:, None], vectors[:, ::-1][:, : self.dim]], axis=1)
 
     def label_cost_weight(self, data: np.ndarray) -> float:
-        """F / R over F frames: the configured label cost is that of an R-frame subspace
-        (R = ``SolverSettings.affine_reference_frames``, 30).
+        """F / R over F frames, at most C: the configured label cost is that of an R-frame
+        subspace (R = ``SolverSettings.affine_reference_frames``, 30) and of any longer one
+        (C = ``SolverSettings.affine_cost_ceiling``, 1; 0 = no ceiling).
 
         Residuals are per-frame RMS distances, so a model's data gain does not grow with F by
         itself, but the motions of different bodies drift apart over time and a short window
         holds less of that evidence. On Hopkins155 a cost proportional to F leaves the all-frame
         error unchanged (19.3% -> 19.7% mean) and cuts the error on the last 10 frames from 23.5%
-        to 18.8% (BENCHMARKS.md).
+        to 18.8% (BENCHMARKS.md). Past R frames the drift no longer adds in proportion: without
+        the ceiling a 61- or 100-frame sequence paid two or three label costs per motion, more
+        than its second motion's data gain and rewards together (Hopkins155 ``cars9_g12``,
+        ``kanatani3``: one motion found for two).
         """
         frames: int = data.shape[1] // 2
-        return frames / self.reference_frames
+        weight = frames / self.reference_frames
+        return min(weight, self.cost_ceiling) if self.cost_ceiling else weight
 
     def residual_dof(self, data: np.ndarray) -> float:
         """(2F - 3) / F: the residual lives in the 2F - 3 directions normal to the subspace and

@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from pearl_ros.core.config import SolverSettings
 from pearl_ros.core.errors import InputError
 from pearl_ros.core.models.affine import AffineSubspace
 
@@ -72,3 +73,13 @@ def test_residual_dof_matches_the_mean_squared_residual_of_pure_noise():
 def test_bad_tracks_raise_input_error_naming_the_argument(bad):
     with pytest.raises(InputError, match='tracks'):
         AffineSubspace().data(bad)
+
+
+@pytest.mark.parametrize('frames, ceiling, weight', [
+    (15, 1.0, 0.5), (30, 1.0, 1.0), (60, 1.0, 1.0), (100, 1.5, 1.5), (60, 0.0, 2.0),
+    (100, 0.0, 100 / 30)])
+def test_the_label_cost_grows_with_the_frames_up_to_its_ceiling(frames, ceiling, weight):
+    # F / 30 (affine_reference_frames), never above affine_cost_ceiling; 0 is no ceiling.
+    model = AffineSubspace(SolverSettings(affine_cost_ceiling=ceiling))
+    data = model.data(np.zeros((frames, 5, 2)))
+    assert model.label_cost_weight(data) == pytest.approx(weight, rel=1e-12)
