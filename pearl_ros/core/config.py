@@ -220,7 +220,14 @@ class SolverSettings:
         low=2, high=1000)
     stranger: float = spec(
         5.0, 'a patch neighbour whose motion gap exceeds this many times that of the last core '
-        'neighbour is left out of the patch', low=1.0)
+        'neighbour (with core_patches: whose distance to the core subspace exceeds this many '
+        'times the second nearest one) is left out of the patch', low=1.0)
+    core_patches: bool = spec(
+        False, "batch fits over three frames or more: a patch's members beyond its core are the "
+        "image neighbours nearest the core's affine subspace, not the closest-moving ones "
+        '(off: the outlier-track row of the suite loses what Hopkins155 and KT3DMoSeg gain)')
+    core_patch_size: int = spec(
+        9, 'points of a patch drawn around its core (core_patches)', low=2, high=1000)
     subspace_dim: int = spec(
         3, "affine dimension of a rigid body's trajectories: contrast patches, the coherence of "
         'long edges, and the motion subspaces that label young tracks', low=1, high=100)

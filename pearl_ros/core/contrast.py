@@ -66,8 +66,10 @@ class LocalSubspaces:
 
 
 def local_subspaces(data: np.ndarray, neighbours: np.ndarray,
-                    settings: SolverSettings | None = None) -> LocalSubspaces:
-    """The local subspace of every point's patch, as :func:`patch_residuals` fits them."""
+                    settings: SolverSettings | None = None,
+                    core_patches: bool = False) -> LocalSubspaces:
+    """The local subspace of every point's patch, as :func:`patch_residuals` fits them; with
+    ``core_patches``, over three frames or more, patches as :func:`_core_patches` draws them."""
     settings = settings or default_solver()
     size, core_size, dim = settings.patch_size, settings.patch_core, settings.subspace_dim
     n = data.shape[0]
@@ -79,13 +81,18 @@ def local_subspaces(data: np.ndarray, neighbours: np.ndarray,
     gap -= moves[:, None, :]
     gap *= gap
     gap = np.sqrt(gap.sum(axis=2))
-    closest = np.argsort(gap, axis=1, kind='stable')[:, : size - 1]
-    neighbours = np.take_along_axis(neighbours, closest, axis=1)
-    gap = np.take_along_axis(gap, closest, axis=1)
-    member = np.ones((n, 1 + neighbours.shape[1]))  # 1 in the patch, 0 left out
-    if neighbours.shape[1] >= core_size:
-        core = gap[:, core_size - 2 : core_size - 1]
-        member[:, core_size:] = gap[:, core_size - 1 :] <= settings.stranger * core
+    order = np.argsort(gap, axis=1, kind='stable')
+    if core_patches and data.shape[1] > 4 and neighbours.shape[1] >= core_size:
+        neighbours, member = _core_patches(data, np.take_along_axis(neighbours, order, axis=1),
+                                           np.take_along_axis(gap, order, axis=1), settings)
+    else:
+        closest = order[:, : size - 1]
+        neighbours = np.take_along_axis(neighbours, closest, axis=1)
+        gap = np.take_along_axis(gap, closest, axis=1)
+        member = np.ones((n, 1 + neighbours.shape[1]))  # 1 in the patch, 0 left out
+        if neighbours.shape[1] >= core_size:
+            core = gap[:, core_size - 2 : core_size - 1]
+            member[:, core_size:] = gap[:, core_size - 1 :] <= settings.stranger * core
     patch = np.concatenate([np.arange(n)[:, None], neighbours], axis=1)
     points = data[patch]  # (N, k, 2F)
     mean = np.einsum('nk,nkd->nd', member, points) / member.sum(axis=1)[:, None]
@@ -99,6 +106,53 @@ def local_subspaces(data: np.ndarray, neighbours: np.ndarray,
     # A direction without spread (a patch of at most 3 points) spans nothing.
     basis /= np.where(lengths > 1e-12, lengths, np.inf)[:, :, None]  # (N, <=3, 2F)
     return LocalSubspaces(mean, basis)
+
+
+def _core_patches(data: np.ndarray, ordered: np.ndarray, gap: np.ndarray,
+                  settings: SolverSettings) -> tuple[np.ndarray, np.ndarray]:
+    """Patches drawn around each point's core: its neighbours ``(N, k)`` ordered closest-moving
+    first (their motion gaps ``gap``, ascending), of which the first ``patch_core - 1`` are the
+    core. The patch is the point, its core and the ``core_patch_size - patch_core`` neighbours
+    nearest the affine subspace through the core's trajectories (exact through its four
+    points); of those, a neighbour is left out where it lies farther from that subspace than
+    ``stranger`` times the second nearest, or where its motion gap exceeds ``stranger`` times
+    the last core neighbour's (the closest-moving patches' own rule: where fewer than two of the
+    point's body lie beyond its core, the nearest are the other body's).
+
+    Next to a body that moves almost as the point's own does (dependent motions: two objects
+    translating alike), the closest-moving neighbours beyond the core are often the other
+    body's, and a patch of both spans both motions, so that pairs across the boundary read
+    alike; the other body's points lie off the core's subspace. Over two frames (R^4) a
+    subspace through four points is too loose to rank by, and over the online segmenter's
+    10-frame windows this ranking measured worse (docs/experiments.md).
+
+    Returns the patch's neighbours ``(N, core_patch_size - 1)`` (fewer where ``k`` is) and the
+    member mask ``(N, 1 + that)``, 1 in the patch (the point first).
+    """
+    core = settings.patch_core - 1
+    offsets = data[ordered] - data[:, None, :]  # (N, k, D), each neighbour from the point
+    gram = offsets @ np.transpose(offsets, (0, 2, 1))  # (N, k, k)
+    # Squared distance of every neighbour to the span of the core's offsets: its squared
+    # length less that of its projection, g^T G_cc^-1 g (a small ridge keeps a degenerate
+    # core, its points on a line, solvable).
+    ridge = 1e-9 * np.trace(gram, axis1=1, axis2=2) / gram.shape[1]
+    core_gram = gram[:, :core, :core] + ridge[:, None, None] * np.eye(core)
+    along = gram[:, :, :core]  # (N, k, c)
+    solved = np.linalg.solve(core_gram[:, None], along[..., None])[..., 0]
+    distance = np.diagonal(gram, axis1=1, axis2=2) - np.einsum('nkc,nkc->nk', along, solved)
+    distance = np.maximum(distance, 0.0)
+    distance[:, :core] = -1.0  # the core first, whatever the rounding
+    nearest = np.argsort(distance, axis=1, kind='stable')[:, : settings.core_patch_size - 1]
+    neighbours = np.take_along_axis(ordered, nearest, axis=1)
+    distance = np.take_along_axis(distance, nearest, axis=1)
+    member = np.ones((ordered.shape[0], 1 + neighbours.shape[1]))
+    if neighbours.shape[1] > core + 2:
+        # Squared distances: the stranger factor squared. Column j + 1 of member is neighbour j.
+        reference = distance[:, core + 1 : core + 2]
+        member[:, core + 3 :] = distance[:, core + 2 :] <= settings.stranger**2 * reference
+    moved = np.take_along_axis(gap, nearest, axis=1)
+    member[:, 1:] *= moved <= settings.stranger * gap[:, core - 1 : core]
+    return neighbours, member
 
 
 def subspace_misses(data: np.ndarray, subspaces: LocalSubspaces, edges: np.ndarray

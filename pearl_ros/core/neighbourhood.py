@@ -34,6 +34,8 @@ class Neighbourhood:
         (kept for :meth:`bridges`; None: fitted again when needed)
     triangulation : scipy.spatial.Delaunay or None, the triangulation ``edges`` came from
         (kept for :meth:`bridges`; None: none, or edges that came otherwise)
+    core_patches : bool, the patches were drawn around their cores
+        (``SolverSettings.core_patches``), and :meth:`bridges` and :meth:`without` draw theirs so
     """
 
     edges: np.ndarray
@@ -42,6 +44,7 @@ class Neighbourhood:
     ids: np.ndarray | None = None
     subspaces: LocalSubspaces | None = field(default=None, repr=False, compare=False)
     triangulation: Delaunay | None = field(default=None, repr=False, compare=False)
+    core_patches: bool = False
 
     def check(self, num_points: int) -> None:
         """Raise InputError unless this neighbourhood is one of ``num_points`` points."""
@@ -72,7 +75,8 @@ class Neighbourhood:
         own = self.edges[:, 0] * n + self.edges[:, 1]
         extra = extra[~_among(extra[:, 0] * n + extra[:, 1], own)]
         data = get_model('affine').data(tracks)
-        subspaces = self.subspaces or local_subspaces(data, self.neighbours, settings)
+        subspaces = self.subspaces or local_subspaces(data, self.neighbours, settings,
+                                                      self.core_patches)
         return extra, subspace_misses(data, subspaces, extra)
 
     def _cavity_edges(self, anchor: np.ndarray, isolated: np.ndarray) -> np.ndarray | None:
@@ -126,9 +130,9 @@ class Neighbourhood:
         settings = settings or default_solver()
         neighbours = nearest_neighbours(tracks[-1], self.neighbours.shape[1], among=~left)
         data = get_model('affine').data(tracks)
-        subspaces = local_subspaces(data, neighbours, settings)
+        subspaces = local_subspaces(data, neighbours, settings, self.core_patches)
         return Neighbourhood(self.edges, neighbours, subspace_misses(data, subspaces, self.edges),
-                             self.ids, subspaces, self.triangulation)
+                             self.ids, subspaces, self.triangulation, self.core_patches)
 
     def nearest_miss(self) -> np.ndarray:
         """Each point's least miss over its edges ``(N,)``, pixels (inf for a point with none):
@@ -147,11 +151,13 @@ class Neighbourhood:
 
 def neighbourhood(tracks: np.ndarray, ids: np.ndarray | None = None,
                   previous: Neighbourhood | None = None,
-                  settings: SolverSettings | None = None) -> Neighbourhood:
+                  settings: SolverSettings | None = None,
+                  core_patches: bool = False) -> Neighbourhood:
     """Delaunay edges, nearest neighbours and edge misses of ``tracks`` (F, N, 2).
 
     Each point gets its ``settings.image_neighbours`` nearest image neighbours (10), and the
-    misses are measured over patches shaped by ``settings`` (:func:`patch_residuals`).
+    misses are measured over patches shaped by ``settings`` (:func:`patch_residuals`), drawn
+    around their cores with ``core_patches`` (batch fits; :func:`local_subspaces`).
 
     With ``ids`` (N,) equal to those of a ``previous`` neighbourhood (the same features, in the
     same order, as a tracker delivers them a frame later), its edges and neighbours are reused:
@@ -169,7 +175,7 @@ def neighbourhood(tracks: np.ndarray, ids: np.ndarray | None = None,
     if previous is not None and previous.ids is not None and ids is not None \
             and np.array_equal(previous.ids, ids):
         edges, neighbours = previous.edges, previous.neighbours
-        subspaces = local_subspaces(trajectories, neighbours, settings)
+        subspaces = local_subspaces(trajectories, neighbours, settings, core_patches)
         triangulation = previous.triangulation
     else:
         anchor = tracks[-1]
@@ -177,11 +183,11 @@ def neighbourhood(tracks: np.ndarray, ids: np.ndarray | None = None,
         triangulated = in_background(_triangulate, anchor) if worthwhile(anchor.shape[0]) \
             else None
         neighbours = nearest_neighbours(anchor, settings.image_neighbours)
-        subspaces = local_subspaces(trajectories, neighbours, settings)
+        subspaces = local_subspaces(trajectories, neighbours, settings, core_patches)
         edges, triangulation = (triangulated.result() if triangulated is not None
                                 else _triangulate(anchor))
     return Neighbourhood(edges, neighbours, subspace_misses(trajectories, subspaces, edges), ids,
-                         subspaces, triangulation)
+                         subspaces, triangulation, core_patches)
 
 
 def delaunay_edges(points: np.ndarray) -> np.ndarray:

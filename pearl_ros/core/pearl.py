@@ -784,7 +784,8 @@ def _setting(tracks: np.ndarray, config: PearlConfig, rng: np.random.Generator,
                          f'model {config.model!r}, got {n}')
     # Neighbours are compared over every frame given, whatever the model family.
     if graph is None:
-        graph = neighbourhood(tracks, settings=solver)
+        graph = neighbourhood(tracks, settings=solver,
+                              core_patches=batch and solver.core_patches)
     else:
         graph.check(n)
     edges, neighbours = graph.edges, graph.neighbours

@@ -6,7 +6,12 @@ import numpy as np
 import pytest
 
 from pearl_ros.core.config import SolverSettings
-from pearl_ros.core.contrast import edge_weights, long_edge_stretch, patch_residuals
+from pearl_ros.core.contrast import (
+    _core_patches,
+    edge_weights,
+    long_edge_stretch,
+    patch_residuals,
+)
 from pearl_ros.core.models import get_model
 from pearl_ros.core.neighbourhood import delaunay_edges, nearest_neighbours, neighbourhood
 
@@ -103,6 +108,81 @@ def test_a_denser_body_around_a_point_does_not_take_over_its_patch():
     # Filled up to 8 points with the closest-moving of body B, the patch spans both motions and
     # misses the far point of its own body.
     assert patch_residuals(data, edge, neighbours, SolverSettings(stranger=np.inf))[0] > 0.1
+
+
+def _core_patches_by_least_squares(data, ordered, gap, settings):
+    """One point at a time: each neighbour's distance to the affine subspace through the point
+    and its core, by least squares; the nearest first, then the stranger rules."""
+    core, size = settings.patch_core - 1, settings.core_patch_size
+    patches, members = [], []
+    for p in range(data.shape[0]):
+        basis = (data[ordered[p, :core]] - data[p]).T  # (D, core)
+        offsets = (data[ordered[p]] - data[p]).T  # (D, k)
+        coef = np.linalg.lstsq(basis, offsets, rcond=None)[0]
+        distance = np.sum(np.square(offsets - basis @ coef), axis=0)
+        distance[:core] = -1.0
+        order = np.argsort(distance, kind='stable')[: size - 1]
+        kept = [True] * (1 + core + 2)
+        reference = distance[order[core + 1]]
+        kept += [bool(d <= settings.stranger**2 * reference) for d in distance[order[core + 2:]]]
+        kept = [kept[0]] + [k and bool(gap[p, j] <= settings.stranger * gap[p, core - 1])
+                            for k, j in zip(kept[1:], order, strict=True)]
+        patches.append(ordered[p, order])
+        members.append(kept)
+    return np.array(patches), np.array(members, dtype=float)
+
+
+@pytest.mark.parametrize('seed', range(4))
+def test_core_patches_match_a_per_point_least_squares(seed):
+    rng = np.random.default_rng(seed)
+    tracks = rng.normal(0.0, 20.0, (6, 40, 2))
+    data = get_model('affine').data(tracks)
+    ordered = nearest_neighbours(tracks[-1], 10)
+    # Motion gaps, ascending along each row as local_subspaces orders them (values as given).
+    gap = np.sort(rng.uniform(0.0, 10.0, ordered.shape), axis=1)
+    settings = SolverSettings()
+    got = _core_patches(data, ordered, gap, settings)
+    want = _core_patches_by_least_squares(data, ordered, gap, settings)
+    np.testing.assert_array_equal(got[0], want[0])
+    np.testing.assert_array_equal(got[1], want[1])
+
+
+def test_a_patch_drawn_around_its_core_ranks_a_dependent_body_last():
+    # Body A turns and translates; body B, among its points, translates as A does on average,
+    # so that B's points are often closer-moving to A's than A's own (dependent motions),
+    # though off A's 3-D affine subspace. Noise-free orthographic views.
+    rng = np.random.default_rng(5)
+    image_a = rng.uniform(0, 20, (12, 2))
+    image_b = rng.uniform(0, 20, (8, 2)) + 10.0
+    depth = rng.uniform(-30, 30, 12)
+    tracks = []
+    for t in range(10):
+        c, s = np.cos(0.02 * t), np.sin(0.02 * t)
+        turned = np.column_stack([image_a, depth]) @ np.array([[c, 0, s], [0, 1, 0], [-s, 0, c]]).T
+        a = turned[:, :2] + [0.5 * t, 0.2 * t]
+        tracks.append(np.vstack([a, image_b + np.mean(a - image_a, axis=0)]))
+    tracks = np.stack(tracks)
+    body = np.repeat([0, 1], [12, 8])
+    data = get_model('affine').data(tracks)
+    neighbours = nearest_neighbours(tracks[-1], 10)
+    # Closest-moving order: trajectories less their mean position, nearest first.
+    moves = data.reshape(20, -1, 2) - data.reshape(20, -1, 2).mean(axis=1, keepdims=True)
+    moves = moves.reshape(20, -1)
+    gap = np.linalg.norm(moves[neighbours] - moves[:, None, :], axis=2)
+    by_gap = np.argsort(gap, axis=1, kind='stable')
+    ordered = np.take_along_axis(neighbours, by_gap, axis=1)
+    gap = np.take_along_axis(gap, by_gap, axis=1)
+    patches = _core_patches(data, ordered, gap, SolverSettings())[0]
+    pure = [p for p in np.flatnonzero(body == 0) if np.all(body[ordered[p, :3]] == 0)]
+    assert len(pure) >= 6
+    mixed = 0
+    for p in pure:
+        # Around a core of A, every A neighbour ranks before every B one.
+        ranks = body[patches[p]]
+        assert not np.any(np.diff(ranks) < 0)
+        mixed += int(np.any(np.diff(body[ordered[p]]) < 0))
+    # By motion alone, B points come before A's own in some of those patches.
+    assert mixed >= 2
 
 
 def test_a_stretched_edge_measures_its_miss_in_a_larger_unit():
