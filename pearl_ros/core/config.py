@@ -223,9 +223,9 @@ class SolverSettings:
         'neighbour (with core_patches: whose distance to the core subspace exceeds this many '
         'times the second nearest one) is left out of the patch', low=1.0)
     core_patches: bool = spec(
-        False, "batch fits over three frames or more: a patch's members beyond its core are the "
+        True, "batch fits over three frames or more: a patch's members beyond its core are the "
         "image neighbours nearest the core's affine subspace, not the closest-moving ones "
-        '(off: the outlier-track row of the suite loses what Hopkins155 and KT3DMoSeg gain)')
+        '(two-view fits and the online segmenter keep the closest-moving patches)')
     core_patch_size: int = spec(
         9, 'points of a patch drawn around its core (core_patches)', low=2, high=1000)
     subspace_dim: int = spec(

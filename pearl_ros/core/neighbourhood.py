@@ -152,12 +152,14 @@ class Neighbourhood:
 def neighbourhood(tracks: np.ndarray, ids: np.ndarray | None = None,
                   previous: Neighbourhood | None = None,
                   settings: SolverSettings | None = None,
-                  core_patches: bool = False) -> Neighbourhood:
+                  core_patches: bool | None = None) -> Neighbourhood:
     """Delaunay edges, nearest neighbours and edge misses of ``tracks`` (F, N, 2).
 
     Each point gets its ``settings.image_neighbours`` nearest image neighbours (10), and the
     misses are measured over patches shaped by ``settings`` (:func:`patch_residuals`), drawn
-    around their cores with ``core_patches`` (batch fits; :func:`local_subspaces`).
+    around their cores with ``core_patches`` (:func:`local_subspaces`; None: as
+    ``settings.core_patches`` says, as a batch fit draws them; the online segmenter passes
+    False).
 
     With ``ids`` (N,) equal to those of a ``previous`` neighbourhood (the same features, in the
     same order, as a tracker delivers them a frame later), its edges and neighbours are reused:
@@ -166,6 +168,8 @@ def neighbourhood(tracks: np.ndarray, ids: np.ndarray | None = None,
     (BENCHMARKS.md), and they are the larger part of the cost.
     """
     settings = settings or default_solver()
+    if core_patches is None:
+        core_patches = settings.core_patches
     tracks = np.asarray(tracks, dtype=np.float64)
     trajectories = get_model('affine').data(tracks)  # validates tracks
     if ids is not None:

@@ -482,7 +482,9 @@ class OnlineSegmenter:
         the noise scale of ``model_name`` on them (given, or estimated) and the tracks
         suspected isolated over their past fits (None: none can be yet)."""
         solver = self.config.solver
-        graph = neighbourhood(tracks, keys, previous, solver)
+        # Closest-moving patches: over the online windows, patches drawn around their cores
+        # measured worse (docs/experiments.md).
+        graph = neighbourhood(tracks, keys, previous, solver, core_patches=False)
         self._graph = (model_name, graph)
         suspects = None
         if solver.isolation and solver.persist_deviations and tracks.shape[0] >= LEAST_SPAN:

@@ -66,7 +66,7 @@ def test_collinear_points_fall_back_to_a_chain():
 def test_neighbourhood_is_its_parts_over_the_last_frame():
     rng = np.random.default_rng(2)
     tracks = rng.uniform(0, 200, (6, 50, 2))
-    graph = neighbourhood(tracks)
+    graph = neighbourhood(tracks, core_patches=False)  # closest-moving patches, as the oracle's
     edges = delaunay_edges(tracks[-1])
     neighbours = nearest_neighbours(tracks[-1], SolverSettings().image_neighbours)
     np.testing.assert_array_equal(graph.edges, edges)
@@ -79,10 +79,10 @@ def test_the_same_features_a_frame_later_keep_their_edges_but_get_new_misses():
     rng = np.random.default_rng(3)
     tracks = rng.uniform(0, 200, (7, 50, 2))
     ids = np.arange(100, 150)
-    before = neighbourhood(tracks[:-1], ids)
+    before = neighbourhood(tracks[:-1], ids, core_patches=False)
     later = tracks[1:] + rng.normal(0, 5.0, tracks[1:].shape)  # enough to move some edges
     assert not np.array_equal(delaunay_edges(later[-1]), before.edges)
-    after = neighbourhood(later, ids, previous=before)
+    after = neighbourhood(later, ids, previous=before, core_patches=False)
     assert after.edges is before.edges and after.neighbours is before.neighbours
     np.testing.assert_allclose(after.misses, patch_residuals(
         get_model('affine').data(later), before.edges, before.neighbours))
@@ -111,3 +111,35 @@ def test_among_finds_codes_as_isin_does_in_sorted_and_unsorted_tables(ordered):
     codes = np.concatenate([rng.choice(known, 40), rng.integers(-5, 10_005, 200)])
     np.testing.assert_array_equal(_among(codes, known), np.isin(codes, known))
     assert not _among(codes, known[:0]).any()
+
+
+def test_patches_are_drawn_around_their_cores_as_the_settings_say_and_never_over_two_frames(
+        affine_scene):
+    tracks, _ = affine_scene(sizes=(90, 70), frames=8, noise=0.5, seed=5)
+    data = get_model('affine').data(tracks)
+    default = neighbourhood(tracks)
+    cores = neighbourhood(tracks, core_patches=True)
+    closest = neighbourhood(tracks, settings=SolverSettings(core_patches=False))
+    assert default.core_patches and not closest.core_patches
+    np.testing.assert_array_equal(default.misses, cores.misses)
+    np.testing.assert_allclose(closest.misses, patch_residuals(data, closest.edges,
+                                                               closest.neighbours))
+    assert not np.allclose(default.misses, closest.misses)
+    # Over two frames (R^4) a subspace through four points ranks nothing: the same patches.
+    two = tracks[[0, -1]]
+    np.testing.assert_array_equal(neighbourhood(two).misses,
+                                  neighbourhood(two, core_patches=False).misses)
+
+
+def test_the_online_segmenter_keeps_the_closest_moving_patches(affine_scene):
+    from pearl_ros.core.config import PearlConfig
+    from pearl_ros.online.config import OnlineConfig
+    from pearl_ros.online.segmenter import OnlineSegmenter
+
+    # Over its windows patches drawn around their cores measured worse (docs/experiments.md).
+    tracks, _ = affine_scene(sizes=(90, 70), frames=10, noise=0.5, seed=5)
+    segmenter = OnlineSegmenter(PearlConfig(), OnlineConfig(budget_ms=0.0, seed=0))
+    graph = segmenter._neighbourhood(tracks, np.arange(tracks.shape[1]), 'affine', None)[0]
+    assert not graph.core_patches
+    np.testing.assert_allclose(graph.misses, patch_residuals(
+        get_model('affine').data(tracks), graph.edges, graph.neighbours))

@@ -522,10 +522,11 @@ def test_patches_drawn_around_their_cores_keep_two_dependent_bodies_apart(hopkin
     # Real data with ground truth: Hopkins155 `2RT3RTCRT_g23`, two bodies whose neighbours
     # across the boundary move almost alike. Patches of the closest-moving neighbours take
     # points of both bodies, the pairs across the boundary read alike, and the energy prefers
-    # one motion; patches drawn around their cores (SolverSettings.core_patches) find both.
+    # one motion; patches drawn around their cores (SolverSettings.core_patches, the default)
+    # find both.
     sequence = hopkins.load_sequence(hopkins_root, '2RT3RTCRT_g23')
-    found = fit(sequence.tracks, PearlConfig(solver=SolverSettings(core_patches=True)), rng=0)
+    found = fit(sequence.tracks, rng=0)
     assert found.num_models == 2
     assert misclassification(found.labels, sequence.labels) < 0.02
-    closest = fit(sequence.tracks, rng=0)
+    closest = fit(sequence.tracks, PearlConfig(solver=SolverSettings(core_patches=False)), rng=0)
     assert closest.num_models == 1
