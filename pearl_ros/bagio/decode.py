@@ -101,17 +101,7 @@ def decode_pointcloud(
     if num_points == 0:
         return _empty()
 
-    if layout == 'auto':
-        if _VINS_MONO_ID in names:
-            layout = 'vins_mono'
-        elif len(names) >= 4:
-            layout = 'vins_fusion'
-        else:
-            raise InputError(
-                f'cannot tell the PointCloud layout: no {_VINS_MONO_ID!r} channel and '
-                f'{len(names)} channel(s) {names} (VINS-Fusion needs >= 4)'
-            )
-
+    layout = _resolved_layout(layout, names)
     if layout == 'vins_mono':
         by_name = dict(zip(names, values, strict=True))
         if _VINS_MONO_ID not in by_name:
@@ -139,6 +129,37 @@ def decode_pointcloud(
     ids_int = integer_ids(ids, 'PointCloud feature ids')
     check_features(ids_int, uv, 'PointCloud')
     return ids_int, uv
+
+
+def _resolved_layout(layout: str, names: list[str]) -> str:
+    """``'vins_mono'`` or ``'vins_fusion'``: ``layout`` (canonical), or what ``'auto'`` tells
+    from a PointCloud's channel ``names``."""
+    if layout != 'auto':
+        return layout
+    if _VINS_MONO_ID in names:
+        return 'vins_mono'
+    if len(names) >= 4:
+        return 'vins_fusion'
+    raise InputError(
+        f'cannot tell the PointCloud layout: no {_VINS_MONO_ID!r} channel and '
+        f'{len(names)} channel(s) {names} (VINS-Fusion needs >= 4)'
+    )
+
+
+def carries_pixels(msg: Any, layout: str = 'auto') -> bool:
+    """Whether the coordinates that :func:`decode_pointcloud` or :func:`decode_pointcloud2`
+    give of ``msg`` are pixels: False where they fall back to normalised coordinates (a
+    VINS-Mono cloud without ``u_of_point``, ``v_of_point``; a PointCloud2 without ``u``, ``v``).
+    Reads the channel or field names alone; a message the decoders refuse gives True."""
+    if hasattr(msg, 'channels'):
+        names = [str(channel.name) for channel in msg.channels]
+        try:
+            layout = _resolved_layout(check_layout(layout), names)
+        except InputError:
+            return True
+        return layout == 'vins_fusion' or _VINS_MONO_U in names or _VINS_MONO_V in names
+    names = [str(field.name) for field in msg.fields]
+    return ('u' in names and 'v' in names) or not ('x' in names and 'y' in names)
 
 
 def point_array(points: Any) -> np.ndarray:

@@ -521,7 +521,12 @@ class PearlNode(Node):
             with self._image_lock:
                 self._overlay.reset()
                 self._matcher.discard(lambda stamp: stamp > out.stamp_ns)
-        self._pair('labels', out.stamp_ns, (out.ids, out.uv, out.labels))
+        if out.image_uv is None:
+            self._warn('normalised', 'features carry normalised coordinates and no intrinsics '
+                       'are known (camera_info_topic, or camera_fx, camera_fy, camera_cx, '
+                       'camera_cy): their labels are not drawn on image_labels')
+            return
+        self._pair('labels', out.stamp_ns, (out.ids, out.image_uv, out.labels))
 
     def _pair(self, kind: str, stamp_ns: int, item: Any) -> None:
         """Offer an image or a frame's labels to the matcher; draw the pair it makes, if any.

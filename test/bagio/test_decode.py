@@ -11,6 +11,7 @@ import pytest
 from rosbags.typesys import Stores, get_typestore
 
 from pearl_ros.bagio.decode import (
+    carries_pixels,
     decode_labels,
     decode_pointcloud,
     decode_pointcloud2,
@@ -108,6 +109,7 @@ def test_auto_picks_channels_by_name_whatever_their_order() -> None:
         ids, uv = decode_pointcloud(msg, layout)
         np.testing.assert_array_equal(ids, [42, 7])
         np.testing.assert_array_equal(uv, [[100.0, 200.0], [101.0, 201.0]])
+        assert carries_pixels(msg, layout)
 
 
 def test_vins_mono_cloud_without_pixel_channels_gives_normalised_points() -> None:
@@ -115,6 +117,8 @@ def test_vins_mono_cloud_without_pixel_channels_gives_normalised_points() -> Non
     ids, uv = decode_pointcloud(msg)
     np.testing.assert_array_equal(ids, [3, 4])
     np.testing.assert_array_equal(uv, [[0.25, -0.5], [0.75, 0.125]])
+    assert not carries_pixels(msg) and not carries_pixels(msg, 'vins_mono')
+    assert carries_pixels(cloud(FOUR_POINTS, FUSION_CHANNELS))  # u, v by index
 
 
 def test_auto_refuses_a_cloud_with_too_few_unnamed_channels() -> None:
@@ -223,9 +227,11 @@ def test_pointcloud2_prefers_pixels_and_falls_back_to_x_y() -> None:
     both = [('id', 0, 6), ('u', 4, 7), ('v', 8, 7), ('x', 12, 7), ('y', 16, 7)]
     _, uv = decode_pointcloud2(cloud2(both, data, width=1, point_step=20))
     np.testing.assert_array_equal(uv, [[100.0, 200.0]])
+    assert carries_pixels(cloud2(both, data, width=1, point_step=20))
     only_xy = [('id', 0, 6), ('x', 12, 7), ('y', 16, 7)]
     _, uv = decode_pointcloud2(cloud2(only_xy, data, width=1, point_step=20))
     np.testing.assert_array_equal(uv, [[0.5, -0.25]])
+    assert not carries_pixels(cloud2(only_xy, data, width=1, point_step=20))
 
 
 @pytest.mark.parametrize(

@@ -6,8 +6,12 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from static_scene import camera_info
 
-from pearl_ros.bagio.decode import decode_labels, decode_pointcloud
+from pearl_ros.bagio import encode
+from pearl_ros.bagio.decode import decode_labels, decode_pointcloud, point_array
+from pearl_ros.bagio.reader import TYPESTORE
+from pearl_ros.core.metrics import misclassification
 from pearl_ros.online.config import build_configs
 from pearl_ros.online.segmenter import OnlineSegmenter
 from pearl_ros.pipeline.messages import Labelled, MessagePipeline, Skipped
@@ -88,3 +92,68 @@ def test_the_outputs_carry_the_header_given() -> None:
     header = MESSAGES[0].header.__class__(stamp=MESSAGES[0].header.stamp, frame_id='other')
     out = labelled(pipeline.process(MESSAGES[0], header))
     assert out.labels_msg.header is header and out.static_msg.header is header
+
+
+# The bag's normalised coordinates are those of a nominal camera of this matrix (make_bag).
+BAG_CAMERA = np.array([[320.0, 0.0, 320.0], [0.0, 240.0, 240.0], [0.0, 0.0, 1.0]])
+XY_FIELDS = (('id', '<u4', 6), ('x', '<f4', 7), ('y', '<f4', 7))  # PointField UINT32, FLOAT32
+
+
+def without_pixels(msg, kind: str):
+    """The features of ``msg`` as normalised coordinates alone: a VINS-Mono cloud without its
+    pixel channels, or a PointCloud2 of fields id, x, y."""
+    if kind == 'PointCloud':
+        channels = [c for c in msg.channels if c.name not in ('u_of_point', 'v_of_point')]
+        return msg.__class__(header=msg.header, points=msg.points, channels=channels)
+    ids, _ = decode_pointcloud(msg)
+    xy = point_array(msg.points)[:, :2]
+    types = encode.MessageTypes.from_typestore(TYPESTORE)
+    return encode.packed_cloud2(msg.header, {'id': ids, 'x': xy[:, 0], 'y': xy[:, 1]},
+                                XY_FIELDS, types)
+
+
+def test_the_bag_camera_maps_its_normalised_coordinates_to_its_pixels() -> None:
+    ids, uv = decode_pointcloud(MESSAGES[0])
+    xy = point_array(MESSAGES[0].points)[:, :2].astype(np.float64)
+    np.testing.assert_allclose(xy @ BAG_CAMERA[:2, :2].T + BAG_CAMERA[:2, 2], uv, atol=0.05)
+
+
+@pytest.mark.parametrize('kind', ['PointCloud', 'PointCloud2'])
+def test_normalised_coordinates_are_segmented_as_their_pixels_are(kind: str) -> None:
+    # Taken as pixels, normalised coordinates put every scale floor of the segmenter at
+    # hundreds of pixels: this sequence came out as one motion.
+    pixels = MessagePipeline(build({'budget_ms': 0.0}))
+    normalised = MessagePipeline(build({'budget_ms': 0.0}))
+    for msg in MESSAGES:
+        expected = labelled(pixels.process(msg))
+        out = labelled(normalised.process(without_pixels(msg, kind)))
+    assert np.unique(expected.labels).size == 2
+    assert misclassification(out.labels, expected.labels) <= 0.01
+    assert out.image_uv is None  # no intrinsics: nowhere to draw them
+    label_ids, _ = decode_labels(out.labels_msg)
+    np.testing.assert_array_equal(label_ids, decode_pointcloud(MESSAGES[-1])[0])
+    np.testing.assert_allclose(out.uv, point_array(MESSAGES[-1].points)[:, :2])  # as they came
+
+
+def test_normalised_coordinates_become_the_pixels_of_the_intrinsics() -> None:
+    fx, fy, cx, cy = BAG_CAMERA[0, 0], BAG_CAMERA[1, 1], BAG_CAMERA[0, 2], BAG_CAMERA[1, 2]
+    pipeline = MessagePipeline(build({'budget_ms': 0.0, 'camera_fx': fx, 'camera_fy': fy,
+                                      'camera_cx': cx, 'camera_cy': cy}))
+    out = labelled(pipeline.process(without_pixels(MESSAGES[0], 'PointCloud')))
+    _, uv = decode_pointcloud(MESSAGES[0])
+    assert out.image_uv is not None
+    np.testing.assert_allclose(out.image_uv, uv, atol=0.05)
+
+
+def test_new_intrinsics_empty_a_window_of_normalised_coordinates() -> None:
+    pipeline = MessagePipeline(build({'budget_ms': 0.0, 'camera_info_topic': '/camera_info'}))
+    for msg in MESSAGES[:3]:  # no camera_info yet: a nominal camera's pixels
+        labelled(pipeline.process(without_pixels(msg, 'PointCloud')))
+    assert pipeline.frames_in_window == 3
+    assert pipeline.add_camera_info(camera_info(0, BAG_CAMERA)) is None
+    out = labelled(pipeline.process(without_pixels(MESSAGES[3], 'PointCloud')))
+    assert pipeline.frames_in_window == 1 and (out.labels == -1).all()
+    assert out.image_uv is not None
+    assert pipeline.add_camera_info(camera_info(0, BAG_CAMERA)) is None  # the same: kept
+    labelled(pipeline.process(without_pixels(MESSAGES[4], 'PointCloud')))
+    assert pipeline.frames_in_window == 2

@@ -277,6 +277,38 @@ def test_a_bad_image_is_warned_about_and_counted_and_the_node_goes_on(ros: Ros) 
     assert sorted(viewer.drawn) == [STAMPS[3]] and sorted(viewer.labels) == STAMPS[:4]
 
 
+def pixels_dropped(msg: PointCloud) -> PointCloud:
+    """The message without its u_of_point, v_of_point channels: its points alone, which the
+    tracker gives as pixels while it has no camera_info, as normalised coordinates later."""
+    msg.channels = [c for c in msg.channels if c.name not in ('u_of_point', 'v_of_point')]
+    return msg
+
+
+@pytest.mark.parametrize('intrinsics', [False, True])
+def test_normalised_features_are_drawn_with_the_intrinsics_or_warned_about(
+        ros: Ros, intrinsics: bool) -> None:
+    # The points are pixels here: with a camera matrix of identity they are drawn where they lie.
+    camera = {'camera_fx': 1.0, 'camera_fy': 1.0} if intrinsics else {}
+    node = ros.pearl(image_topic='image', budget_ms=0.0, **camera)
+    viewer = Viewer(ros, features=True)
+    assert viewer.features is not None
+    viewer.wait_for(node)
+    frames = range(4)
+    for k, features in zip(frames, offline_features(frames[-1]), strict=True):
+        viewer.images.publish(image_msg(k))
+        viewer.features.publish(pixels_dropped(features))
+        viewer.wait_labels(k)
+    if intrinsics:
+        viewer.wait_drawn(frames[-1])
+        check_drawing(viewer, frames, lambda k: np.repeat(SCENE.frames[k][:, :, None], 3, axis=2))
+        assert not any('normalised' in m.msg for m in viewer.logs)
+        return
+    assert ros.spin_until(lambda: any('normalised' in m.msg for m in viewer.logs), 5.0)
+    warnings = [m.msg for m in viewer.logs if 'normalised' in m.msg]
+    assert len(warnings) == 1 and 'camera_info_topic' in warnings[0]
+    assert not viewer.drawn and sorted(viewer.labels) == STAMPS[:len(frames)]
+
+
 def test_without_image_topic_there_is_no_image_subscription_nor_output(ros: Ros) -> None:
     node = ros.pearl()
     assert node.get_parameter('image_topic').value == ''
