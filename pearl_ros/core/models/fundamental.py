@@ -162,8 +162,9 @@ class Fundamental(TwoViewModel):
         start[6] = s[1] / s[0]
 
         def matrices_of(p: np.ndarray) -> np.ndarray:
-            left = _rotations(p[:, 0:3]) @ u2  # (B, 3, 2)
-            right = _rotations(p[:, 3:6]) @ v2
+            turns = _rotations(np.concatenate([p[:, 0:3], p[:, 3:6]]))  # both, in one call
+            left = turns[:p.shape[0]] @ u2  # (B, 3, 2)
+            right = turns[p.shape[0]:] @ v2
             singular = np.stack([np.ones(p.shape[0]), p[:, 6]], axis=1)  # (B, 2)
             fn = (left * singular[:, None, :]) @ np.swapaxes(right, 1, 2)
             pixels: np.ndarray = sims.T2.T @ fn @ sims.T1
