@@ -9,7 +9,7 @@ from scipy.spatial.transform import Rotation
 
 from pearl_ros.core.errors import InputError
 from pearl_ros.core.models import get_model
-from pearl_ros.core.models._twoview import FAR
+from pearl_ros.core.models._twoview import _FD_STEP, FAR, Similarities, normalise, refine_lm
 from pearl_ros.core.models.fundamental import Fundamental, _rotations
 from pearl_ros.core.neighbourhood import nearest_neighbours
 from pearl_ros.core.scale import local_scale
@@ -276,6 +276,33 @@ def test_refit_ends_at_a_local_minimum_of_the_sampson_cost(model, scene):
     linear = eight_point(truth.data)
     assert directions_that_lower_the_cost(linear) > 0  # the probe can tell
     assert directions_that_lower_the_cost(model.refit(truth.data, np.arange(200), linear)) == 0
+
+
+@pytest.mark.parametrize('max_nfev', [3, 50])
+def test_refine_lm_takes_the_steps_of_scipy_least_squares_lm(model, scene, max_nfev):
+    # refine_lm calls MINPACK itself; scipy's least_squares(method='lm') is the reference it
+    # must match to the bit, stopped by its tolerances (50) or by the evaluation cap (3).
+    truth = scene(n=120, noise=1.0, seed=8)
+    start = eight_point(truth.data[:40])
+    _, T1, T1_inv, _ = normalise(truth.data[None, :, :2])
+    _, T2, T2_inv, _ = normalise(truth.data[None, :, 2:])
+    sims = Similarities(T1[0], T1_inv[0], T2[0], T2_inv[0])
+    chart_start, matrices_of = model._chart(start, sims)
+
+    def residuals_of(batch):
+        return model._whitened(matrices_of(batch), truth.data)
+
+    def jac(p):
+        step = _FD_STEP * np.maximum(1.0, np.abs(p))
+        r = residuals_of(np.vstack([p, p + np.diag(step)]))
+        return ((r[1:] - r[0]) / step[:, None]).T
+
+    p0 = chart_start + 0.3  # away from the linear fit, so that LM has steps to take
+    expected = least_squares(lambda p: residuals_of(p[None])[0], p0, jac=jac, method='lm',
+                             max_nfev=max_nfev).x
+    found = refine_lm(residuals_of, p0, max_nfev)
+    assert not np.array_equal(found, p0)
+    np.testing.assert_array_equal(found, expected)
 
 
 def test_refit_recovers_the_truth_when_outliers_are_excluded(model, scene):
