@@ -137,6 +137,32 @@ def test_after_a_reset_no_track_takes_back_a_number_from_before_it():
     assert number_of(second[-1], frames[-1], 1) == car  # the number still comes back
 
 
+@pytest.mark.parametrize('seed', [0, 1])
+def test_a_static_world_seen_driving_forward_is_one_motion_on_every_frame(seed):
+    # Perspective spreads a driving camera's static world over more than one affine subspace
+    # (near points stream outwards, far ones barely move): a segmenter that cuts it in two
+    # tells a visual-inertial estimator that half of the static world moves.
+    rng = np.random.default_rng(seed)
+    world = np.column_stack([rng.uniform(-15, 15, 250), rng.uniform(-3, 1.5, 250),
+                             rng.uniform(3, 60, 250)])
+    segmenter = OnlineSegmenter(online=dataclasses.replace(UNTIMED, seed=seed))
+    labelled = 0
+    for t in range(40):
+        yaw = 0.005 * t  # 8 m/s at 30 Hz, turning 0.15 rad/s
+        turn = np.array([[math.cos(yaw), 0.0, math.sin(yaw)], [0.0, 1.0, 0.0],
+                         [-math.sin(yaw), 0.0, math.cos(yaw)]])
+        seen = (world - [0.0, 0.0, 8.0 * t / 30]) @ turn
+        uv = 500.0 * seen[:, :2] / seen[:, 2:] + [320.0, 240.0]
+        ids = np.flatnonzero((seen[:, 2] > 1.0) & np.all((uv > 0) & (uv < [640, 480]), axis=1))
+        result = segmenter.process(1_000_000_000 + t * 33_333_333, ids,
+                                   uv[ids] + rng.normal(0.0, 0.5, (ids.size, 2)))
+        motions = np.unique(result.labels[result.labels >= 0])
+        assert motions.size <= 1, f'frame {t}: {motions.size} motions'
+        assert np.mean(result.labels == OUTLIER) < 0.02 or t < 2
+        labelled += motions.size
+    assert labelled >= 35  # every frame once the first motion is fitted
+
+
 def test_feature_order_does_not_change_the_labels_of_a_feature():
     frames = list(synthetic_stream(150, 25, (BodySpec(0.4),), seed=3))
     rng = np.random.default_rng(0)
