@@ -136,9 +136,10 @@ class Labelled:
     stamp_ns, ids, uv
         The message's stamp and features, as in :class:`~pearl_ros.bagio.reader.FeatureFrame`.
     image_uv : (N, 2) float64 or None
-        Where the features lie in the image: ``uv``, or normalised coordinates projected with
-        the intrinsics (a pinhole camera's: the lens's distortion is not put back); None for
-        normalised coordinates while no intrinsics are known.
+        Where the features lie in the image, and the ``u``, ``v`` of ``labels_msg``: ``uv``,
+        or normalised coordinates projected with the intrinsics (a pinhole camera's: the lens's
+        distortion is not put back); None for normalised coordinates while no intrinsics are
+        known (``labels_msg`` then carries them as they came).
     labels : (N,) int64
         Motion number per input feature in input order, -1 = outlier or undecided.
     segmented : (N,) bool
@@ -379,7 +380,8 @@ class MessagePipeline:
                       else result.static_motion)
         static = encode.static_mask(labels, background)
         header = msg.header if header is None else header
-        labels_msg = encode.motion_labels(header, ids, uv, labels, self._types)
+        labels_msg = encode.motion_labels(header, ids, uv if image_uv is None else image_uv,
+                                          labels, self._types)
         static_msg = encode.static_features(msg, static, self._types, node.layout,
                                             node.camera_id)
         static_msg.header = header

@@ -5,10 +5,12 @@ Topics (names relative to the node's namespace unless absolute)
 ``features`` (in)
     ``sensor_msgs/msg/PointCloud`` (VINS-Mono or VINS-Fusion layout) or ``PointCloud2`` (fields
     ``id`` and ``u``, ``v`` or ``x``, ``y``), parameter ``msg_type``. Remap it to the tracker's
-    topic (``features:=/feature_tracker/feature``).
+    topic (``features:=/feature_tracker/feature``). Normalised coordinates alone (no pixels in
+    the message) are segmented as the pixels of the intrinsics, or of a nominal camera.
 ``motion_labels`` (out)
     ``sensor_msgs/msg/PointCloud2``, one point per input feature in input order: ``id`` uint32,
-    ``u``, ``v`` float32 (pixels), ``label`` int32 (-1 = outlier or undecided).
+    ``u``, ``v`` float32 (pixels; normalised coordinates that no intrinsics project stay as
+    they came), ``label`` int32 (-1 = outlier or undecided).
 ``static_features`` (out)
     The input message, same type and layout, with only the background motion's features.
 ``image_labels`` (out, when the parameter ``image_topic`` names an image topic)

@@ -9,7 +9,7 @@ import pytest
 from static_scene import camera_info
 
 from pearl_ros.bagio import encode
-from pearl_ros.bagio.decode import decode_labels, decode_pointcloud, point_array
+from pearl_ros.bagio.decode import decode_fields, decode_labels, decode_pointcloud, point_array
 from pearl_ros.bagio.reader import TYPESTORE
 from pearl_ros.core.metrics import misclassification
 from pearl_ros.online.config import build_configs
@@ -99,6 +99,12 @@ BAG_CAMERA = np.array([[320.0, 0.0, 320.0], [0.0, 240.0, 240.0], [0.0, 0.0, 1.0]
 XY_FIELDS = (('id', '<u4', 6), ('x', '<f4', 7), ('y', '<f4', 7))  # PointField UINT32, FLOAT32
 
 
+def decode_fields_uv(msg) -> tuple[np.ndarray, np.ndarray]:
+    """The ids and ``u``, ``v`` of a ``motion_labels`` message."""
+    columns = decode_fields(msg, ('id', 'u', 'v'))
+    return columns['id'].astype(np.int64), np.column_stack([columns['u'], columns['v']])
+
+
 def without_pixels(msg, kind: str):
     """The features of ``msg`` as normalised coordinates alone: a VINS-Mono cloud without its
     pixel channels, or a PointCloud2 of fields id, x, y."""
@@ -130,9 +136,11 @@ def test_normalised_coordinates_are_segmented_as_their_pixels_are(kind: str) -> 
     assert np.unique(expected.labels).size == 2
     assert misclassification(out.labels, expected.labels) <= 0.01
     assert out.image_uv is None  # no intrinsics: nowhere to draw them
-    label_ids, _ = decode_labels(out.labels_msg)
+    label_ids, published = decode_fields_uv(out.labels_msg)
     np.testing.assert_array_equal(label_ids, decode_pointcloud(MESSAGES[-1])[0])
-    np.testing.assert_allclose(out.uv, point_array(MESSAGES[-1].points)[:, :2])  # as they came
+    xy = point_array(MESSAGES[-1].points)[:, :2]
+    np.testing.assert_allclose(out.uv, xy)
+    np.testing.assert_allclose(published, xy)  # no intrinsics: published as they came
 
 
 def test_normalised_coordinates_become_the_pixels_of_the_intrinsics() -> None:
@@ -143,6 +151,8 @@ def test_normalised_coordinates_become_the_pixels_of_the_intrinsics() -> None:
     _, uv = decode_pointcloud(MESSAGES[0])
     assert out.image_uv is not None
     np.testing.assert_allclose(out.image_uv, uv, atol=0.05)
+    _, published = decode_fields_uv(out.labels_msg)
+    np.testing.assert_allclose(published, uv, atol=0.05)  # motion_labels carries pixels
 
 
 def test_new_intrinsics_empty_a_window_of_normalised_coordinates() -> None:
