@@ -122,6 +122,16 @@ def drawn_array(msg: Image) -> np.ndarray:
     return np.frombuffer(bytes(msg.data), np.uint8).reshape(msg.height, msg.width, 3)
 
 
+def drawing_node(ros: Ros, **parameters: Any) -> tuple[PearlNode, Viewer, Any]:
+    """A pearl_node drawing on ``image`` (unbudgeted), a viewer that publishes images and
+    features to it, once they see each other, and the viewer's ``publish`` of features."""
+    node = ros.pearl(image_topic='image', budget_ms=0.0, **parameters)
+    viewer = Viewer(ros, features=True)
+    assert viewer.features is not None
+    viewer.wait_for(node)
+    return node, viewer, viewer.features.publish
+
+
 def check_drawing(viewer: Viewer, frames: range, background: Any) -> None:
     """Each frame's image_labels: the input's header and size, published after its
     motion_labels, the input under the drawing, each motion in one colour of its own."""
@@ -185,38 +195,32 @@ def test_the_camera_chain_draws_every_frame_after_publishing_its_labels(ros: Ros
 
 
 def test_labels_that_come_before_their_image_wait_for_it(ros: Ros) -> None:
-    node = ros.pearl(image_topic='image', budget_ms=0.0)
-    viewer = Viewer(ros, features=True)
-    assert viewer.features is not None
-    viewer.wait_for(node)
+    node, viewer, send = drawing_node(ros)
     messages = offline_features(len(STAMPS) - 1)
     for k, features in enumerate(messages):
         if k % 2:  # odd frames: labels first, then the image
-            viewer.features.publish(features)
+            send(features)
             viewer.wait_labels(k)
             assert STAMPS[k] not in viewer.drawn
             viewer.images.publish(image_msg(k, 'rgb8'))
         else:  # even frames: the image waits for the labels
             viewer.images.publish(image_msg(k, 'rgb8'))
             assert ros.spin_until(lambda k=k: node.stats.images == k + 1)
-            viewer.features.publish(features)
+            send(features)
         viewer.wait_drawn(k)
     check_drawing(viewer, range(len(STAMPS)),
                   lambda k: cv2.cvtColor(tinted_rgb(SCENE.frames[k]), cv2.COLOR_RGB2BGR))
 
 
 def test_images_and_labels_without_a_partner_are_dropped_and_counted(ros: Ros) -> None:
-    node = ros.pearl(image_topic='image', budget_ms=0.0)
-    viewer = Viewer(ros, features=True)
-    assert viewer.features is not None
-    viewer.wait_for(node)
+    node, viewer, send = drawing_node(ros)
     messages = offline_features(4)
     viewer.images.publish(image_msg(0))  # no features for it: the tracker skipped it
-    viewer.features.publish(messages[1])  # no image for it
+    send(messages[1])  # no image for it
     viewer.wait_labels(1)
     assert ros.spin_until(lambda: node.stats.images == 1)
     viewer.images.publish(image_msg(2))
-    viewer.features.publish(messages[2])
+    send(messages[2])
     viewer.wait_drawn(2)
     values = viewer.diagnostics_where('annotated images', '1')
     assert values['images without labels (dropped)'] == '1'
@@ -228,20 +232,17 @@ def test_images_and_labels_without_a_partner_are_dropped_and_counted(ros: Ros) -
 def test_a_stamp_gone_back_starts_the_drawing_afresh(ros: Ros) -> None:
     # A bag replayed in a loop: labels at an earlier stamp empty the window; the image of that
     # stamp is still drawn, and what waited for a later stamp is dropped.
-    node = ros.pearl(image_topic='image', budget_ms=0.0)
-    viewer = Viewer(ros, features=True)
-    assert viewer.features is not None
-    viewer.wait_for(node)
+    node, viewer, send = drawing_node(ros)
     messages = offline_features(3)
     for k in (0, 1, 2):
         viewer.images.publish(image_msg(k))
-        viewer.features.publish(messages[k])
+        send(messages[k])
         viewer.wait_drawn(k)
     viewer.images.publish(image_msg(3))  # its labels never come: the loop restarts
     viewer.drawn.clear()
     viewer.images.publish(image_msg(0))
     assert ros.spin_until(lambda: node.stats.images == 5)
-    viewer.features.publish(messages[0])
+    send(messages[0])
     viewer.wait_drawn(0)
     values = viewer.diagnostics_where('annotated images', '4')
     assert values['window resets (stamp went back)'] == '1'
@@ -250,24 +251,21 @@ def test_a_stamp_gone_back_starts_the_drawing_afresh(ros: Ros) -> None:
 
 
 def test_a_bad_image_is_warned_about_and_counted_and_the_node_goes_on(ros: Ros) -> None:
-    node = ros.pearl(image_topic='image', budget_ms=0.0)
-    viewer = Viewer(ros, features=True)
-    assert viewer.features is not None
-    viewer.wait_for(node)
+    node, viewer, send = drawing_node(ros)
     messages = offline_features(3)
     for k in (0, 1):  # an encoding we do not read, twice in a row: one warning
         viewer.images.publish(Image(header=header(STAMPS[k]), height=240, width=320,
                                     encoding='32FC1', step=320 * 4, data=bytes(240 * 320 * 4)))
     for k in (0, 1):
-        viewer.features.publish(messages[k])
+        send(messages[k])
         viewer.wait_labels(k)
     short = image_msg(2)
     short.data = bytes(short.data)[:1000]  # a supported encoding, too little data
     viewer.images.publish(short)
-    viewer.features.publish(messages[2])
+    send(messages[2])
     viewer.wait_labels(2)
     viewer.images.publish(image_msg(3))
-    viewer.features.publish(messages[3])
+    send(messages[3])
     viewer.wait_drawn(3)
     values = viewer.diagnostics_where('annotated images', '1')  # a status after the last draw
     assert values['images refused (encoding, malformed)'] == '3'
@@ -289,14 +287,11 @@ def test_normalised_features_are_drawn_with_the_intrinsics_or_warned_about(
         ros: Ros, intrinsics: bool) -> None:
     # The points are pixels here: with a camera matrix of identity they are drawn where they lie.
     camera = {'camera_fx': 1.0, 'camera_fy': 1.0} if intrinsics else {}
-    node = ros.pearl(image_topic='image', budget_ms=0.0, **camera)
-    viewer = Viewer(ros, features=True)
-    assert viewer.features is not None
-    viewer.wait_for(node)
+    node, viewer, send = drawing_node(ros, **camera)
     frames = range(4)
     for k, features in zip(frames, offline_features(frames[-1]), strict=True):
         viewer.images.publish(image_msg(k))
-        viewer.features.publish(pixels_dropped(features))
+        send(pixels_dropped(features))
         viewer.wait_labels(k)
     if intrinsics:
         viewer.wait_drawn(frames[-1])
