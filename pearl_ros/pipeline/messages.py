@@ -39,6 +39,10 @@ if TYPE_CHECKING:
 # 640 and 1242 px wide: Hopkins155, KITTI); taken as they are, normalised coordinates put the
 # floor at about 25 px of such a camera (a Hopkins155 sample: 4.8% -> 36% misclassified).
 NOMINAL_FOCAL = 500.0
+# The largest normalised coordinate: 20 is a ray 87 degrees off the optical axis. A message
+# whose coordinates named normalised reach beyond it carries pixels (a PointCloud2 whose x, y
+# a tracker filled with pixels), and they are taken as such.
+NORMALISED_LIMIT = 20.0
 
 # Kinds of skipped message, each with words of the reasons that belong to it (first match).
 # A front end warns once per kind and counts the rest.
@@ -361,7 +365,7 @@ class MessagePipeline:
         stamp = decode.stamp_ns(msg.header)
         pixels = uv[segmented]
         image_uv: np.ndarray | None = uv
-        if not decode.carries_pixels(msg, node.layout):
+        if not decode.carries_pixels(msg, node.layout) and _normalised(uv):
             k = self._normalised_camera()
             pixels = _project(k, pixels)
             image_uv = None if self.intrinsics is None else _project(k, uv)
@@ -405,3 +409,9 @@ class MessagePipeline:
 def _project(k: np.ndarray, points: np.ndarray) -> np.ndarray:
     """Pixels ``(N, 2)`` of normalised coordinates ``points`` ``(N, 2)`` by camera matrix ``k``."""
     return points @ k[:2, :2].T + k[:2, 2]
+
+
+def _normalised(points: np.ndarray) -> bool:
+    """Whether coordinates ``(N, 2)`` that a message names normalised are: none beyond
+    :data:`NORMALISED_LIMIT`."""
+    return bool(np.all(np.abs(points) <= NORMALISED_LIMIT))

@@ -143,6 +143,22 @@ def test_normalised_coordinates_are_segmented_as_their_pixels_are(kind: str) -> 
     np.testing.assert_allclose(published, xy)  # no intrinsics: published as they came
 
 
+def test_pixels_in_fields_named_normalised_are_taken_as_pixels() -> None:
+    # A PointCloud2 whose x, y a tracker filled with pixels: beyond any normalised coordinate.
+    types = encode.MessageTypes.from_typestore(TYPESTORE)
+    pixels = MessagePipeline(build({'budget_ms': 0.0}))
+    in_xy = MessagePipeline(build({'budget_ms': 0.0, 'camera_fx': 320.0, 'camera_fy': 240.0,
+                                   'camera_cx': 320.0, 'camera_cy': 240.0}))
+    for msg in MESSAGES[:6]:
+        ids, uv = decode_pointcloud(msg)
+        cloud = encode.packed_cloud2(msg.header, {'id': ids, 'x': uv[:, 0], 'y': uv[:, 1]},
+                                     XY_FIELDS, types)
+        expected = labelled(pixels.process(msg))
+        out = labelled(in_xy.process(cloud))
+        np.testing.assert_array_equal(out.labels, expected.labels)
+        np.testing.assert_allclose(out.image_uv, uv, atol=1e-3)  # float32 in the message
+
+
 def test_normalised_coordinates_become_the_pixels_of_the_intrinsics() -> None:
     fx, fy, cx, cy = BAG_CAMERA[0, 0], BAG_CAMERA[1, 1], BAG_CAMERA[0, 2], BAG_CAMERA[1, 2]
     pipeline = MessagePipeline(build({'budget_ms': 0.0, 'camera_fx': fx, 'camera_fy': fy,
