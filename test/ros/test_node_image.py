@@ -275,9 +275,17 @@ def test_a_bad_image_is_warned_about_and_counted_and_the_node_goes_on(ros: Ros) 
     assert sorted(viewer.drawn) == [STAMPS[3]] and sorted(viewer.labels) == STAMPS[:4]
 
 
-def pixels_dropped(msg: PointCloud) -> PointCloud:
-    """The message without its u_of_point, v_of_point channels: its points alone, which the
-    tracker gives as pixels while it has no camera_info, as normalised coordinates later."""
+# A camera for the rendered frames (320 x 240): focal length and principal point, px.
+FOCAL_PX, CENTRE_PX = 300.0, (160.0, 120.0)
+
+
+def normalised_only(msg: PointCloud) -> PointCloud:
+    """The message as a front end that sends normalised coordinates alone would: its points
+    (pixels, from a tracker without camera_info) taken to the normalised coordinates of the
+    camera of FOCAL_PX and CENTRE_PX, and no u_of_point, v_of_point channels."""
+    for point in msg.points:
+        point.x = (point.x - CENTRE_PX[0]) / FOCAL_PX
+        point.y = (point.y - CENTRE_PX[1]) / FOCAL_PX
     msg.channels = [c for c in msg.channels if c.name not in ('u_of_point', 'v_of_point')]
     return msg
 
@@ -285,13 +293,14 @@ def pixels_dropped(msg: PointCloud) -> PointCloud:
 @pytest.mark.parametrize('intrinsics', [False, True])
 def test_normalised_features_are_drawn_with_the_intrinsics_or_warned_about(
         ros: Ros, intrinsics: bool) -> None:
-    # The points are pixels here: with a camera matrix of identity they are drawn where they lie.
-    camera = {'camera_fx': 1.0, 'camera_fy': 1.0} if intrinsics else {}
+    # With the camera's intrinsics the normalised points are drawn where the tracker found them.
+    camera = ({'camera_fx': FOCAL_PX, 'camera_fy': FOCAL_PX, 'camera_cx': CENTRE_PX[0],
+               'camera_cy': CENTRE_PX[1]} if intrinsics else {})
     node, viewer, send = drawing_node(ros, **camera)
     frames = range(4)
     for k, features in zip(frames, offline_features(frames[-1]), strict=True):
         viewer.images.publish(image_msg(k))
-        send(pixels_dropped(features))
+        send(normalised_only(features))
         viewer.wait_labels(k)
     if intrinsics:
         viewer.wait_drawn(frames[-1])
