@@ -158,8 +158,20 @@ def carries_pixels(msg: Any, layout: str = 'auto') -> bool:
         except InputError:
             return True
         return layout == 'vins_fusion' or _VINS_MONO_U in names or _VINS_MONO_V in names
-    names = [str(field.name) for field in msg.fields]
-    return ('u' in names and 'v' in names) or not ('x' in names and 'y' in names)
+    try:
+        return _coordinate_fields([str(field.name) for field in msg.fields]) == ('u', 'v')
+    except InputError:
+        return True
+
+
+def _coordinate_fields(names: list[str]) -> tuple[str, str]:
+    """The fields of a PointCloud2's coordinates among its field ``names``: ``u``, ``v``
+    (pixels), else ``x``, ``y`` (normalised coordinates)."""
+    if 'u' in names and 'v' in names:
+        return 'u', 'v'
+    if 'x' in names and 'y' in names:
+        return 'x', 'y'
+    raise InputError(f'PointCloud2 has no u, v (or x, y) fields; fields: {names}')
 
 
 def point_array(points: Any) -> np.ndarray:
@@ -214,12 +226,7 @@ def decode_pointcloud2(msg: Any) -> tuple[np.ndarray, np.ndarray]:
     if int(msg.height) * int(msg.width) == 0:
         return _empty()
     names = [str(field.name) for field in msg.fields]
-    if 'u' in names and 'v' in names:
-        u_name, v_name = 'u', 'v'
-    elif 'x' in names and 'y' in names:
-        u_name, v_name = 'x', 'y'
-    else:
-        raise InputError(f'PointCloud2 has no u, v (or x, y) fields; fields: {names}')
+    u_name, v_name = _coordinate_fields(names)
     if 'id' not in names:
         raise InputError(f'PointCloud2 has no id field; fields: {names}')
     columns = decode_fields(msg, ('id', u_name, v_name))

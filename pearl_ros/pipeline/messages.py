@@ -366,9 +366,10 @@ class MessagePipeline:
         pixels = uv[segmented]
         image_uv: np.ndarray | None = uv
         if not decode.carries_pixels(msg, node.layout) and _normalised(uv):
-            k = self._normalised_camera()
-            pixels = _project(k, pixels)
-            image_uv = None if self.intrinsics is None else _project(k, uv)
+            known = self.intrinsics
+            projected = _project(self._normalised_camera(known), uv)
+            pixels = projected[segmented]
+            image_uv = None if known is None else projected
         elif self._lens is not None and node.camera_info_topic:
             pixels = self._lens.undistort(pixels)
         try:
@@ -392,11 +393,12 @@ class MessagePipeline:
         return Labelled(stamp, ids, uv, labels, segmented, static, result, labels_msg,
                         static_msg, image_uv)
 
-    def _normalised_camera(self) -> np.ndarray:
+    def _normalised_camera(self, intrinsics: np.ndarray | None) -> np.ndarray:
         """The camera matrix (3, 3) whose pixels a frame's normalised coordinates become: the
-        intrinsics, or a nominal camera's (:data:`NOMINAL_FOCAL`) where none are known. One
-        other than the last one's empties the window: its tracks were in the other pixels."""
-        k = self.intrinsics
+        ``intrinsics`` (:attr:`intrinsics`), or a nominal camera's (:data:`NOMINAL_FOCAL`)
+        where none are known. One other than the last one's empties the window: its tracks
+        were in the other pixels."""
+        k = intrinsics
         if k is None:
             k = poses.intrinsics_matrix(NOMINAL_FOCAL, NOMINAL_FOCAL, 0.0, 0.0)
         if (self._normalised_k is not None and not np.array_equal(k, self._normalised_k)

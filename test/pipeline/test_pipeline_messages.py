@@ -105,17 +105,19 @@ def decode_fields_uv(msg) -> tuple[np.ndarray, np.ndarray]:
     return columns['id'].astype(np.int64), np.column_stack([columns['u'], columns['v']])
 
 
+def xy_cloud(header, ids: np.ndarray, xy: np.ndarray):
+    """A PointCloud2 of fields id, x, y (the coordinates it names normalised)."""
+    return encode.packed_cloud2(header, {'id': ids, 'x': xy[:, 0], 'y': xy[:, 1]}, XY_FIELDS,
+                                encode.MessageTypes.from_typestore(TYPESTORE))
+
+
 def without_pixels(msg, kind: str):
     """The features of ``msg`` as normalised coordinates alone: a VINS-Mono cloud without its
     pixel channels, or a PointCloud2 of fields id, x, y."""
     if kind == 'PointCloud':
         channels = [c for c in msg.channels if c.name not in ('u_of_point', 'v_of_point')]
         return msg.__class__(header=msg.header, points=msg.points, channels=channels)
-    ids, _ = decode_pointcloud(msg)
-    xy = point_array(msg.points)[:, :2]
-    types = encode.MessageTypes.from_typestore(TYPESTORE)
-    return encode.packed_cloud2(msg.header, {'id': ids, 'x': xy[:, 0], 'y': xy[:, 1]},
-                                XY_FIELDS, types)
+    return xy_cloud(msg.header, decode_pointcloud(msg)[0], point_array(msg.points)[:, :2])
 
 
 def test_the_bag_camera_maps_its_normalised_coordinates_to_its_pixels() -> None:
@@ -145,14 +147,12 @@ def test_normalised_coordinates_are_segmented_as_their_pixels_are(kind: str) -> 
 
 def test_pixels_in_fields_named_normalised_are_taken_as_pixels() -> None:
     # A PointCloud2 whose x, y a tracker filled with pixels: beyond any normalised coordinate.
-    types = encode.MessageTypes.from_typestore(TYPESTORE)
     pixels = MessagePipeline(build({'budget_ms': 0.0}))
     in_xy = MessagePipeline(build({'budget_ms': 0.0, 'camera_fx': 320.0, 'camera_fy': 240.0,
                                    'camera_cx': 320.0, 'camera_cy': 240.0}))
     for msg in MESSAGES[:6]:
         ids, uv = decode_pointcloud(msg)
-        cloud = encode.packed_cloud2(msg.header, {'id': ids, 'x': uv[:, 0], 'y': uv[:, 1]},
-                                     XY_FIELDS, types)
+        cloud = xy_cloud(msg.header, ids, uv)
         expected = labelled(pixels.process(msg))
         out = labelled(in_xy.process(cloud))
         np.testing.assert_array_equal(out.labels, expected.labels)
