@@ -189,6 +189,12 @@ class SolverSettings:
         'scales keep exp(-(d / static_contrast)^2) of their tie (a point that moves as the '
         'static world would and one that does not are not alike); 0 = ties as without cameras',
         low=0.0, high=1e6)
+    interchangeable: float = spec(
+        4.0, 'batch fits: once the search settles, two models each of which holds the '
+        'other\'s points within this many of its own noise levels (the median point) are one '
+        'motion and are merged, whatever the pair term says: its rewards for cutting neighbours '
+        'that move apart otherwise keep a body cut in two along a depth discontinuity; 0 = off',
+        low=0.0, high=1e6)
     sigma_ceiling: float = spec(
         0.0, 'most noise level a model may claim, in units of the noise scale; 0 = none',
         low=0.0, high=1e6)

@@ -457,29 +457,46 @@ def fit(
     # lowest energy kept: its searches end in different minima from seed to seed.
     restarts = (config.solver.two_view_restarts
                 if batch and init is None and config.model in TWO_VIEW else 1)
-    best: PearlResult | None = None
+    if restarts == 1:
+        return _run(_steps(tracks, config, generator, init, deadline, init_cost, propose,
+                           graph, suspects, init_label_share, cameras, batch))
+    # The restarts' searches are compared where they end; the lowest is then settled.
+    best: tuple[_Search, PearlResult] | None = None
     spent: dict[str, float] = {}  # every fit's seconds per step
     for restart in range(restarts):
         if restart and _past(deadline):
             break
-        result = _run(_steps(tracks, config, generator, init, deadline, init_cost, propose,
-                             graph, suspects, init_label_share, cameras, batch))
+        search, result = _run_search(_steps(tracks, config, generator, init, deadline,
+                                            init_cost, propose, graph, suspects,
+                                            init_label_share, cameras, batch, settle=False))
         for step, seconds in result.timings.items():
             spent[step] = spent.get(step, 0.0) + seconds
-        if best is None or result.energy < best.energy:
-            best = result
+        if best is None or result.energy < best[1].energy:
+            best = search, result
     assert best is not None
-    return best if restarts == 1 else dataclasses.replace(best, timings=spent)
+    search, result = best
+    history = list(result.energy_history)
+    _run(_settle(search, history, spent))
+    return _result(search, history, result.iterations, spent)
 
 
 def _run(steps: Generator[object, None, _T]) -> _T:
     """Run the steps of a generator to its end; its return value."""
+    return _run_search(steps)[1]
+
+
+def _run_search(steps: Generator[object, None, _T]) -> tuple[_Search, _T]:
+    """Run the steps of :func:`_steps` (or any generator) to its end: the search it yielded
+    first (None if none) and its return value."""
+    search = None
     while True:
         try:
-            next(steps)
+            step = next(steps)
         except StopIteration as done:
             result: _T = done.value
-            return result
+            return search, result  # type: ignore[return-value]
+        if search is None and isinstance(step, _Search):
+            search = step
 
 
 def _timed_steps(timings: dict[str, float], step: str, steps: Generator[None, None, _T]
@@ -557,10 +574,11 @@ class SlicedFit:
 def _steps(tracks: np.ndarray, config: PearlConfig, rng: np.random.Generator,
            init: np.ndarray | None, deadline: float | None, init_cost: float, propose: bool,
            graph: Neighbourhood | None, suspects: np.ndarray | None = None,
-           init_share: float = 1.0, cameras: np.ndarray | None = None, batch: bool = True
-           ) -> Generator[_Search | None, None, PearlResult]:
+           init_share: float = 1.0, cameras: np.ndarray | None = None, batch: bool = True,
+           settle: bool = True) -> Generator[_Search | None, None, PearlResult]:
     """:func:`fit`'s steps: yields the search once set up, then None before each step
-    (:class:`SlicedFit`); returns the result."""
+    (:class:`SlicedFit`); returns the result. Without ``settle``, the last step
+    (:func:`_settle`) is left to the caller."""
     timings = {'setup': 0.0, 'propose': 0.0, 'expand': 0.0, 'refit': 0.0}
     with _timed(timings, 'setup'):
         setting = _setting(tracks, config, rng, graph, suspects, cameras, batch)
@@ -585,9 +603,25 @@ def _steps(tracks: np.ndarray, config: PearlConfig, rng: np.random.Generator,
         if (yield from _timed_steps(timings, 'refit', _merge(search, deadline))):
             history.append(search.energy())
         search.compress()  # only the models in use go on (into the next round, the result)
+    if settle:
+        yield from _settle(search, history, timings)
+    return _result(search, history, iterations, timings)
+
+
+def _settle(search: _Search, history: list[float], timings: dict[str, float]
+            ) -> Generator[None, None, None]:
+    """The search's last step: interchangeable models merged (:func:`_merge_interchangeable`),
+    the energy after it added to ``history``."""
+    if (yield from _timed_steps(timings, 'refit', _merge_interchangeable(search))):
+        history.append(search.energy())
+        search.compress()
+
+
+def _result(search: _Search, history: list[float], iterations: int,
+            timings: dict[str, float]) -> PearlResult:
     return PearlResult(np.where(search.labels == OUTLIER_ROW, OUTLIER, search.labels - 1),
                        search.params, search.sigmas, search.energy(), tuple(history),
-                       iterations, timings, setting.scale)
+                       iterations, timings, search.setting.scale)
 
 
 def _descend(search: _Search, max_iterations: int, deadline: float | None,
@@ -1143,6 +1177,49 @@ def _merge(search: _Search, deadline: float | None = None) -> Generator[None, No
         keep, drop, fitted = best
         search.labels = np.where(search.labels == drop, keep, search.labels)
         search.adopt(keep, fitted, np.flatnonzero(search.labels == keep))
+        merges += 1
+    return merges
+
+
+def _merge_interchangeable(search: _Search) -> Generator[None, None, int]:
+    """Merge the models that are one motion by their residuals alone, once the rounds end;
+    returns the merges made.
+
+    Two models are interchangeable where each holds the other's points about as it holds its
+    own: the median of the other segment's residuals to it is within
+    ``SolverSettings.interchangeable`` of its noise levels. The pair term can keep such a pair
+    apart: neighbours on one body that move apart in the image (a depth discontinuity under
+    perspective, where the local subspaces of the contrast term extrapolate badly) earn a
+    reward for being cut, and a second model along that line collects it. The merge ignores
+    the energy, which it may raise: it is a test of the hypotheses, as multi-model fitting
+    merges duplicate instances, not a move. The most interchangeable pair goes first, the
+    larger segment keeping its label and its model refitted to both; then the pairs are
+    measured again. Yields before each refit.
+    """
+    limit = search.setting.solver.interchangeable if search.setting.batch else 0.0
+    merges = 0
+    while limit > 0:
+        used = np.unique(search.labels[search.labels != OUTLIER_ROW])
+        if used.size < 2:
+            break
+        members = [search.labels == label for label in used]
+        # held[i, j]: the median residual of segment j's points to model i, in its noise levels
+        held = np.array([[np.median(search.residuals[a - 1, members[j]]) / search.sigmas[a - 1]
+                          for j in range(used.size)] for a in used])
+        apart = np.maximum(held, held.T)
+        np.fill_diagonal(apart, np.inf)
+        i, j = np.unravel_index(np.argmin(apart), apart.shape)
+        if not apart[i, j] < limit:
+            break
+        keep, drop = ((used[i], used[j]) if np.count_nonzero(members[i])
+                      >= np.count_nonzero(members[j]) else (used[j], used[i]))
+        both = np.flatnonzero((search.labels == keep) | (search.labels == drop))
+        yield
+        fitted = _refit_one(search.setting, both, search.params[keep - 1])
+        if fitted is None:
+            break
+        search.labels = np.where(search.labels == drop, keep, search.labels)
+        search.adopt(keep, fitted, both)
         merges += 1
     return merges
 
