@@ -461,7 +461,7 @@ def fit(
         return _run(_steps(tracks, config, generator, init, deadline, init_cost, propose,
                            graph, suspects, init_label_share, cameras, batch))
     # The restarts' searches are compared where they end; the lowest is then settled.
-    best: tuple[_Search, PearlResult] | None = None
+    best: tuple[_Search | None, PearlResult] | None = None
     spent: dict[str, float] = {}  # every fit's seconds per step
     for restart in range(restarts):
         if restart and _past(deadline):
@@ -475,6 +475,7 @@ def fit(
             best = search, result
     assert best is not None
     search, result = best
+    assert search is not None  # _steps yields its search first
     history = list(result.energy_history)
     _run(_settle(search, history, spent))
     return _result(search, history, result.iterations, spent)
@@ -485,16 +486,16 @@ def _run(steps: Generator[object, None, _T]) -> _T:
     return _run_search(steps)[1]
 
 
-def _run_search(steps: Generator[object, None, _T]) -> tuple[_Search, _T]:
+def _run_search(steps: Generator[object, None, _T]) -> tuple[_Search | None, _T]:
     """Run the steps of :func:`_steps` (or any generator) to its end: the search it yielded
     first (None if none) and its return value."""
-    search = None
+    search: _Search | None = None
     while True:
         try:
             step = next(steps)
         except StopIteration as done:
             result: _T = done.value
-            return search, result  # type: ignore[return-value]
+            return search, result
         if search is None and isinstance(step, _Search):
             search = step
 
@@ -1213,7 +1214,7 @@ def _merge_interchangeable(search: _Search) -> Generator[None, None, int]:
             break
         keep, drop = ((used[i], used[j]) if np.count_nonzero(members[i])
                       >= np.count_nonzero(members[j]) else (used[j], used[i]))
-        both = np.flatnonzero((search.labels == keep) | (search.labels == drop))
+        both = np.flatnonzero(members[i] | members[j])
         yield
         fitted = _refit_one(search.setting, both, search.params[keep - 1])
         if fitted is None:
