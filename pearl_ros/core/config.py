@@ -281,6 +281,14 @@ class SolverSettings:
     subspace_members: int = spec(
         5, 'fitted members a motion needs to offer its subspace to young tracks',
         low=1, high=1000000)
+    founding_scales: float = spec(
+        5.0, 'streaming: a young track farther than this many noise scales (RMS per frame) '
+        'from every motion\'s subspace is unexplained; where founding_tracks of them lie in '
+        'one cluster of the image, the next fits span no more frames than they do, so that '
+        'they can found a motion of their own (a new object); 0 = off', low=0.0, high=1e6)
+    founding_tracks: int = spec(
+        8, 'streaming: unexplained young tracks in one cluster, at least as old as their median, '
+        'that cut the fitted span (founding_scales)', low=1, high=1000000)
     energy_rise: float = spec(
         0.05, 'rise of the energy per feature, as a share, on a warm frame without proposals '
         'that makes the next frame propose', low=0.0, high=1e6)

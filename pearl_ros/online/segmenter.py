@@ -68,6 +68,10 @@ COLD_START_FRAMES = 4
 # world's noise level is given the static world's motion (3: a track of it under Gaussian
 # noise lies within in all but a few cases).
 STATIC_YOUNG = 3.0
+# Unexplained young tracks are a cluster (founding_span) where each has at least
+# FOUNDING_CLUSTER others of them among its FOUNDING_NEIGHBOURS nearest features in the image.
+FOUNDING_NEIGHBOURS = 5
+FOUNDING_CLUSTER = 2
 # The work of a frame after its fit (numbering the motions, labelling the young tracks) comes
 # out of the frame's budget: the fit stops that much earlier, the most this work took over the
 # last this many frames.
@@ -149,6 +153,8 @@ class OnlineSegmenter:
         self._energy_ref = 0.0  # energy per feature of that fit
         self._graph: tuple[str, Neighbourhood] | None = None  # model, last fit's neighbourhood
         self._cold: _ColdStart | None = None  # a budgeted cold start under way
+        # The most frames the next fit spans, while young tracks found a motion (None: any).
+        self._span_limit: int | None = None
         # Each track's isolation over its last window of fits (online/isolation.py).
         self._isolation = IsolationHistory(self.online.window)
         # Seconds from the end of each of the last TAIL_FRAMES fits to its frame's answer, and
@@ -172,6 +178,7 @@ class OnlineSegmenter:
         self._check_due = None
         self._graph = None
         self._cold = None
+        self._span_limit = None
         self._isolation.clear()
 
     def delivered(self, at: float | None = None) -> None:
@@ -265,6 +272,8 @@ class OnlineSegmenter:
         coords, age = self._window.history(keys)
 
         span = _span(age, self.online.min_coverage)
+        if self._span_limit is not None:
+            span = min(span, self._span_limit)
         model_name = self._model_name(span)
         fitted = np.flatnonzero(age >= span) if span >= 2 else np.empty(0, dtype=np.int64)
         warm = False
@@ -314,9 +323,11 @@ class OnlineSegmenter:
                     and chosen is None):
                 known = (static_motion, _static_young(coords, age, tracked, cameras,
                                                       float(result.sigmas[static])))
+            distances = np.full(tracked.size, np.inf)
             motion_labels[tracked] = _nearest_subspace(coords, age, fitted,
                                                        motion_labels[fitted], tracked, solver,
-                                                       known)
+                                                       known, distances)
+            self._found(coords, age, tracked, distances, model_name)
             motion_labels[newborn] = _vote(uv[seen], fitted, motion_labels[fitted], newborn,
                                            self.online.neighbours)
         else:
@@ -529,6 +540,21 @@ class OnlineSegmenter:
         self._scales[model_name] = (scale, age + 1)
         return scale
 
+    def _found(self, coords: np.ndarray, age: np.ndarray, tracked: np.ndarray,
+               distances: np.ndarray, model_name: str) -> None:
+        """Set the span limit of the next fits: it grows by a frame a frame (the tracks that
+        set it age with the window) until the window holds no more, and is cut to the span of
+        young tracks that found a motion (:func:`founding_span`)."""
+        limit = self._span_limit
+        if limit is not None:
+            limit = None if limit >= self.online.window else limit + 1
+        scale = self._scales.get(model_name, (0.0, 0))[0]
+        if scale > 0:
+            found = founding_span(coords, age, tracked, distances, scale, self.config.solver)
+            if found is not None:
+                limit = found if limit is None else min(limit, found)
+        self._span_limit = limit
+
     def _identify(self, segments: np.ndarray, prior: np.ndarray, keys: np.ndarray
                   ) -> np.ndarray:
         """Motion numbers for ``segments`` (0..K-1, -1) of the tracks ``keys``, matched to the
@@ -680,6 +706,42 @@ def _chosen(keys: np.ndarray, most: int) -> np.ndarray | None:
     return np.sort(np.argsort(hashed, kind='stable')[:most])
 
 
+def founding_span(coords: np.ndarray, age: np.ndarray, young: np.ndarray,
+                  distances: np.ndarray, scale: float, settings: SolverSettings) -> int | None:
+    """The span of the next fit (frames) that lets ``young`` tracks no motion explains found
+    one of their own, or None where they do not call for one.
+
+    A motion is fitted only from the tracks that span the fitted frames, and a young track
+    goes to the nearest motion found (:func:`_nearest_subspace`): an object that enters, or
+    whose tracks are lost and found again as it moves (occlusion, its own outline), has too few
+    spanning tracks to be proposed from and is labelled with its surroundings. The young tracks
+    farther than ``settings.founding_scales`` noise scales (RMS per frame, ``distances`` being
+    each one's squared distance to its nearest motion's subspace) from every motion are
+    unexplained; those with at least ``FOUNDING_CLUSTER`` others of them among their
+    ``FOUNDING_NEIGHBOURS`` nearest features in the newest frame are a cluster (outlier tracks
+    start anywhere; a new object's points come together). Where ``settings.founding_tracks``
+    of the cluster are at least its median age (3 at the least) old, the next fit spans that
+    age plus one (the frame they will have aged by).
+    """
+    if settings.founding_scales <= 0 or young.size < settings.founding_tracks:
+        return None
+    with np.errstate(invalid='ignore'):
+        far = np.sqrt(distances / age[young]) / scale > settings.founding_scales
+    lost = young[far]
+    if lost.size < settings.founding_tracks:
+        return None
+    now = coords[-1]
+    k = min(FOUNDING_NEIGHBOURS + 1, now.shape[0])
+    _, near = cKDTree(now).query(now[lost], k=k)
+    cluster = lost[np.isin(near[:, 1:], lost).sum(axis=1) >= FOUNDING_CLUSTER]
+    if cluster.size < settings.founding_tracks:
+        return None
+    frames = max(3, int(np.median(age[cluster])))
+    if np.count_nonzero(age[cluster] >= frames) < settings.founding_tracks:
+        return None
+    return frames + 1
+
+
 def _span(age: np.ndarray, coverage: float) -> int:
     """The most frames back that at least ``coverage`` of the features span (0 if none)."""
     if age.size == 0:
@@ -692,7 +754,8 @@ def _span(age: np.ndarray, coverage: float) -> int:
 def _nearest_subspace(coords: np.ndarray, age: np.ndarray, fitted: np.ndarray,
                       fitted_labels: np.ndarray, young: np.ndarray,
                       settings: SolverSettings | None = None,
-                      known: tuple[int, np.ndarray] | None = None) -> np.ndarray:
+                      known: tuple[int, np.ndarray] | None = None,
+                      distances: np.ndarray | None = None) -> np.ndarray:
     """Labels of ``young`` tracks (each ``age`` < the fitted span): the motion whose members'
     trajectories over the young track's own frames span the affine subspace nearest to it.
 
@@ -715,6 +778,8 @@ def _nearest_subspace(coords: np.ndarray, age: np.ndarray, fitted: np.ndarray,
         A motion whose model is known (the static world seen by known cameras), with each
         young track's squared distance to it (infinite where it does not explain the track):
         the known model stands in for the motion's subspace.
+    distances : (Y,) float64, optional, filled with each young track's squared distance to
+        its nearest subspace (left as it was where no motion is offered)
     """
     settings = settings or default_solver()
     out = np.full(young.size, OUTLIER, dtype=np.int64)
@@ -749,6 +814,8 @@ def _nearest_subspace(coords: np.ndarray, age: np.ndarray, fitted: np.ndarray,
         if known is not None and np.any(motions == known[0]):
             distance_sq[np.flatnonzero(motions == known[0])[0]] = known[1][rows]
         nearest = np.argmin(distance_sq, axis=0)
+        if distances is not None:
+            distances[rows] = distance_sq[nearest, np.arange(rows.size)]
         out[rows] = np.where(np.isfinite(distance_sq[nearest, np.arange(rows.size)]),
                              motions[nearest], OUTLIER)
     return out

@@ -29,7 +29,7 @@ FRAMES = 60
 FPS = 30.0
 # Mean misclassification of the labels from the 10th frame on, against the rendered ground truth.
 # Measured with budget_ms=0 (labels independent of the machine's load) on 60-frame 480 x 640
-# clips written with mp4v: seed 0 2.12%, seed 1 1.86%, seed 2 2.49%. The bound is the issue's
+# clips written with mp4v: seed 0 2.10%, seed 1 1.23%, seed 2 2.29%. The bound is the issue's
 # target; labelling every feature one motion scores ~15-30% on these clips (checked below).
 MEAN_BOUND = 0.03
 

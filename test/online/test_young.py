@@ -1,5 +1,7 @@
 """Young tracks labelled by the nearest motion subspace, against a one-motion-at-a-time SVD, and
-the youngest by their image neighbours' vote."""
+the youngest by their image neighbours' vote; clusters of young tracks no motion explains
+founding a motion of their own (``founding_span``), against the rule counted by hand and a
+scene whose object is seen only through young tracks."""
 
 from __future__ import annotations
 
@@ -7,9 +9,10 @@ import numpy as np
 import pytest
 
 from pearl_ros.core.config import PearlConfig, SolverSettings
+from pearl_ros.core.metrics import misclassification
 from pearl_ros.datasets.robot import robot_stream
 from pearl_ros.online.config import OnlineConfig
-from pearl_ros.online.segmenter import OnlineSegmenter, _nearest_subspace
+from pearl_ros.online.segmenter import OnlineSegmenter, _nearest_subspace, founding_span
 
 
 def _brute_force(coords, age, fitted, fitted_labels, young):
@@ -49,6 +52,21 @@ def test_nearest_subspace_matches_a_per_track_svd(seed):
     labels[:15] = np.repeat([0, 1, 2], 5)  # every motion has enough members
     np.testing.assert_array_equal(_nearest_subspace(coords, age, fitted, labels, young),
                                   _brute_force(coords, age, fitted, labels, young))
+    # The distances it reports are the nearest subspace's, by the same SVD.
+    distances = np.full(young.size, np.inf)
+    _nearest_subspace(coords, age, fitted, labels, young, distances=distances)
+    for i, y in enumerate(young):
+        point = coords[-age[y]:, y].reshape(-1)
+        best = np.inf
+        for motion in range(3):
+            members = fitted[labels == motion]
+            rows = np.stack([coords[-age[y]:, m].reshape(-1) for m in members])
+            mean = rows.mean(axis=0)
+            _, _, vt = np.linalg.svd(rows - mean, full_matrices=False)
+            basis = vt[: min(3, 2 * age[y] - 1)].T
+            offset = point - mean
+            best = min(best, float(np.sum(np.square(offset - basis @ (basis.T @ offset)))))
+        assert distances[i] == pytest.approx(best, rel=1e-6, abs=1e-6)
 
 
 def test_a_motion_with_too_few_members_is_not_offered():
@@ -94,3 +112,86 @@ def test_tracks_seen_in_two_frames_take_their_image_neighbours_vote():
     voted = _off_their_body(SolverSettings(), scene=1)
     nearest = _off_their_body(SolverSettings(young_min_age=2), scene=1)
     assert voted < 0.5 * nearest
+
+
+def _founding_frame(rng, clustered):
+    """A frame of 200 features (the window's newest, over 10 frames) with young tracks aged
+    2-6: 50 in one 40 px blob (``clustered``), or 15 anywhere (as outlier tracks start)."""
+    frames, n = 10, 200
+    coords = rng.uniform(0, 640, (frames, n, 2))
+    age = np.full(n, frames)
+    young = np.arange(150, 200) if clustered else np.arange(185, 200)
+    age[young] = rng.integers(2, 7, young.size)
+    if clustered:
+        coords[:, young] = rng.uniform(300, 340, (frames, young.size, 2))
+    for i in young:
+        coords[: frames - age[i], i] = np.nan
+    return coords, age, young
+
+
+@pytest.mark.parametrize('seed', range(4))
+def test_a_cluster_of_unexplained_young_tracks_cuts_the_span_to_their_age(seed):
+    # Oracle: the rule as stated, counted by hand. Distances of 10 scales over every frame
+    # (RMS per frame 10 > 5): each young track is unexplained.
+    rng = np.random.default_rng(seed)
+    coords, age, young = _founding_frame(rng, clustered=True)
+    settings = SolverSettings()
+    scale = 0.5
+    distances = (10 * scale) ** 2 * age[young].astype(float)
+    median = max(3, int(np.median(age[young])))
+    expected = median + 1 if np.count_nonzero(age[young] >= median) >= 8 else None
+    assert founding_span(coords, age, young, distances, scale, settings) == expected
+    assert expected is not None
+    # Explained (RMS per frame 4 scales), they found nothing.
+    near = (4 * scale) ** 2 * age[young].astype(float)
+    assert founding_span(coords, age, young, near, scale, settings) is None
+    # Scattered over the image, as outlier tracks are, neither.
+    coords, age, young = _founding_frame(rng, clustered=False)
+    distances = (10 * scale) ** 2 * age[young].astype(float)
+    assert founding_span(coords, age, young, distances, scale, settings) is None
+    # Off.
+    off = SolverSettings(founding_scales=0.0)
+    coords, age, young = _founding_frame(rng, clustered=True)
+    assert founding_span(coords, age, young, distances, scale, off) is None
+
+
+def _churning_object(seed: int, frames: int = 40, life: int = 9):
+    """A panning camera's background (200 tracks that last) and a 60-point object moving
+    against it whose tracks live ``life`` frames each, staggered: the object never has tracks
+    that span a 10-frame window. Per frame: ids, pixels, truth (0 background, 1 object)."""
+    rng = np.random.default_rng(seed)
+    background = rng.uniform([20, 20], [620, 460], (200, 2))
+    centre = np.array([200.0, 240.0])
+    offsets = rng.uniform(-40, 40, (60, 2))
+    out = []
+    for t in range(frames):
+        pan = np.array([2.0 * t, 0.5 * t])
+        uv_bg = background - pan
+        angle = 0.02 * t
+        turn = np.array([[np.cos(angle), -np.sin(angle)], [np.sin(angle), np.cos(angle)]])
+        uv_obj = centre + np.array([3.0 * t, 1.0 * t]) + offsets @ turn.T
+        # Object point k is re-detected every `life` frames, at its own phase: a new id each.
+        generation = (t + np.arange(60)) // life
+        ids = np.concatenate([np.arange(200), 1000 + 60 * generation + np.arange(60)])
+        uv = np.vstack([uv_bg, uv_obj]) + rng.normal(0, 0.3, (260, 2))
+        out.append((ids, uv, np.repeat([0, 1], [200, 60])))
+    return out
+
+
+@pytest.mark.parametrize('seed', range(2))
+def test_an_object_whose_tracks_churn_is_found_from_its_young_tracks(seed):
+    # With founding off the object's young tracks go to the background's motion on every
+    # frame; with it they are fitted over their own span and found as a motion of their own
+    # on most frames (the span then grows with them and loses the oldest, which die).
+    errors = {}
+    for scales in (0.0, 5.0):
+        config = PearlConfig(solver=SolverSettings(founding_scales=scales))
+        segmenter = OnlineSegmenter(config, OnlineConfig(budget_ms=0.0, seed=seed))
+        rates = []
+        for t, (ids, uv, truth) in enumerate(_churning_object(seed)):
+            labels = segmenter.process(1_000_000_000 + t * 33_333_333, ids, uv).labels
+            if t >= 20:
+                rates.append(misclassification(labels, truth))
+        errors[scales] = float(np.mean(rates))
+    assert errors[0.0] > 0.15  # the object (23% of the features) is lost without it
+    assert errors[5.0] < 0.5 * errors[0.0]
