@@ -725,7 +725,7 @@ def founding_span(coords: np.ndarray, age: np.ndarray, young: np.ndarray,
     """
     if settings.founding_scales <= 0 or young.size < settings.founding_tracks:
         return None
-    with np.errstate(invalid='ignore'):
+    with np.errstate(invalid='ignore'):  # a distance rounded below 0 reads as explained
         far = np.sqrt(distances / age[young]) / scale > settings.founding_scales
     lost = young[far]
     if lost.size < settings.founding_tracks:
@@ -814,10 +814,10 @@ def _nearest_subspace(coords: np.ndarray, age: np.ndarray, fitted: np.ndarray,
         if known is not None and np.any(motions == known[0]):
             distance_sq[np.flatnonzero(motions == known[0])[0]] = known[1][rows]
         nearest = np.argmin(distance_sq, axis=0)
+        least = distance_sq[nearest, np.arange(rows.size)]
         if distances is not None:
-            distances[rows] = distance_sq[nearest, np.arange(rows.size)]
-        out[rows] = np.where(np.isfinite(distance_sq[nearest, np.arange(rows.size)]),
-                             motions[nearest], OUTLIER)
+            distances[rows] = least
+        out[rows] = np.where(np.isfinite(least), motions[nearest], OUTLIER)
     return out
 
 

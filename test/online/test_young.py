@@ -16,7 +16,9 @@ from pearl_ros.online.segmenter import OnlineSegmenter, _nearest_subspace, found
 
 
 def _brute_force(coords, age, fitted, fitted_labels, young):
-    out = []
+    """Each young track's nearest motion and its squared distance to that motion's subspace,
+    one motion and one track at a time."""
+    out, nearest = [], []
     for y in young:
         a = age[y]
         point = coords[-a:, y].reshape(-1)
@@ -34,7 +36,8 @@ def _brute_force(coords, age, fitted, fitted_labels, young):
             if distance < best:
                 best, label = distance, motion
         out.append(label)
-    return np.array(out, dtype=np.int64)
+        nearest.append(best ** 2)
+    return np.array(out, dtype=np.int64), np.array(nearest)
 
 
 @pytest.mark.parametrize('seed', range(8))
@@ -50,23 +53,12 @@ def test_nearest_subspace_matches_a_per_track_svd(seed):
     young = np.flatnonzero(age < frames)
     labels = rng.integers(-1, 3, fitted.size)
     labels[:15] = np.repeat([0, 1, 2], 5)  # every motion has enough members
-    np.testing.assert_array_equal(_nearest_subspace(coords, age, fitted, labels, young),
-                                  _brute_force(coords, age, fitted, labels, young))
-    # The distances it reports are the nearest subspace's, by the same SVD.
+    expected, nearest = _brute_force(coords, age, fitted, labels, young)
     distances = np.full(young.size, np.inf)
-    _nearest_subspace(coords, age, fitted, labels, young, distances=distances)
-    for i, y in enumerate(young):
-        point = coords[-age[y]:, y].reshape(-1)
-        best = np.inf
-        for motion in range(3):
-            members = fitted[labels == motion]
-            rows = np.stack([coords[-age[y]:, m].reshape(-1) for m in members])
-            mean = rows.mean(axis=0)
-            _, _, vt = np.linalg.svd(rows - mean, full_matrices=False)
-            basis = vt[: min(3, 2 * age[y] - 1)].T
-            offset = point - mean
-            best = min(best, float(np.sum(np.square(offset - basis @ (basis.T @ offset)))))
-        assert distances[i] == pytest.approx(best, rel=1e-6, abs=1e-6)
+    np.testing.assert_array_equal(
+        _nearest_subspace(coords, age, fitted, labels, young, distances=distances), expected)
+    # The distances it reports are the nearest subspace's, by the same SVD.
+    np.testing.assert_allclose(distances, nearest, rtol=1e-6, atol=1e-6)
 
 
 def test_a_motion_with_too_few_members_is_not_offered():
