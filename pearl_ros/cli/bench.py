@@ -478,8 +478,9 @@ def _add_latency_parser(commands: Any) -> None:
                          help='features per frame, one run each; N@HZ runs that size at HZ '
                          'instead of --rate (2000@10: 2000 features at 10 Hz); default '
                          '300 500 1000 2000, 500 with --profile')
-    latency.add_argument('--windows', type=int, nargs='+', default=[10], metavar='W',
-                         help='window sizes, frames (default 10)')
+    latency.add_argument('--windows', type=int, nargs='+', metavar='W',
+                         help='window sizes, frames (default: the window parameter, 15 '
+                         'unless --set)')
     latency.add_argument('--rate', type=float, default=30.0, metavar='HZ',
                          help='frame rate, Hz: frames arrive every 1/HZ s (default 30)')
     latency.add_argument('--queue', choices=('all', 'newest'), default='newest',
@@ -554,18 +555,19 @@ def _latency(args: argparse.Namespace) -> int:
     sizes = [latency.parse_size(token, args.rate) for token in tokens]
     if args.cameras and args.stream != 'robot':
         raise InputError('--cameras needs --stream robot (its cameras are known)')
-    if min(args.windows) < 2 or args.frames <= max(args.windows):
+    windows = args.windows or [online.window]
+    if min(windows) < 2 or args.frames <= max(windows):
         raise InputError('need windows >= 2 and frames > window')
     if args.profile:
-        if len(sizes) > 1 or len(args.windows) > 1:
+        if len(sizes) > 1 or len(windows) > 1:
             raise InputError('--profile runs one size: give one --features and one --windows')
-        print(bench_stream.profile_one(sizes[0][0], args.windows[0], args.frames, config,
+        print(bench_stream.profile_one(sizes[0][0], windows[0], args.frames, config,
                                        online, args.scene_seeds[0], stream=args.stream,
                                        cameras=args.cameras))
         return 0
     rows = []
     for features, rate in sizes:
-        for window in args.windows:
+        for window in windows:
             for scene in args.scene_seeds:
                 sys.stderr.write(f'\rlatency: {features} features at {rate:g} Hz, W={window}, '
                                  f'scene {scene}   ')

@@ -195,6 +195,10 @@ class SolverSettings:
         'motion and are merged, whatever the pair term says: its rewards for cutting neighbours '
         'that move apart otherwise keep a body cut in two along a depth discontinuity; 0 = off',
         low=0.0, high=1e6)
+    interchangeable_online: float = spec(
+        3.0, 'interchangeable, for the online fits of a stream (one frame\'s fit is short of '
+        'search: duplicates of one motion it keeps go on to the next frames); 0 = off',
+        low=0.0, high=1e6)
     sigma_ceiling: float = spec(
         0.0, 'most noise level a model may claim, in units of the noise scale; 0 = none',
         low=0.0, high=1e6)

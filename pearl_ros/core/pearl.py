@@ -1188,7 +1188,8 @@ def _merge_interchangeable(search: _Search) -> Generator[None, None, int]:
 
     Two models are interchangeable where each holds the other's points about as it holds its
     own: the median of the other segment's residuals to it is within
-    ``SolverSettings.interchangeable`` of its noise levels. The pair term can keep such a pair
+    ``SolverSettings.interchangeable`` of its noise levels (``interchangeable_online`` in a
+    stream's fits). The pair term can keep such a pair
     apart: neighbours on one body that move apart in the image (a depth discontinuity under
     perspective, where the local subspaces of the contrast term extrapolate badly) earn a
     reward for being cut, and a second model along that line collects it. The merge ignores
@@ -1197,7 +1198,8 @@ def _merge_interchangeable(search: _Search) -> Generator[None, None, int]:
     larger segment keeping its label and its model refitted to both; then the pairs are
     measured again. Yields before each refit.
     """
-    limit = search.setting.solver.interchangeable if search.setting.batch else 0.0
+    solver = search.setting.solver
+    limit = solver.interchangeable if search.setting.batch else solver.interchangeable_online
     merges = 0
     while limit > 0:
         used = np.unique(search.labels[search.labels != OUTLIER_ROW])

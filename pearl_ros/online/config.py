@@ -35,7 +35,7 @@ class OnlineConfig:
     The energy itself (noise, label cost, smoothness, the model family) is :class:`PearlConfig`.
     """
 
-    window: int = spec(10, 'frames in the sliding window (the newest included)', low=2, high=1000)
+    window: int = spec(15, 'frames in the sliding window (the newest included)', low=2, high=1000)
     warm_start: bool = spec(True, "start each frame from the previous frame's models and labels")
     warm_proposals: int = spec(
         30, 'fresh minimal samples per warm-started frame (cold frames use num_proposals)',
@@ -68,6 +68,13 @@ class OnlineConfig:
         low=0, high=10**9)
     min_coverage: float = spec(
         0.5, "share of a frame's features that must span the frames the models are fitted over",
+        low=0.0, high=1.0)
+    long_span: int = spec(
+        10, 'fits span more frames than this only where long_coverage of the features span '
+        'them: a longer span tells rigid motions apart better where tracks last, and leaves '
+        'more young tracks unfitted where they churn', low=2, high=1000)
+    long_coverage: float = spec(
+        0.8, "share of a frame's features that must span a fit longer than long_span frames",
         low=0.0, high=1.0)
     two_view_model: str = spec(
         'fundamental', 'model between the window ends when only two frames span enough '

@@ -271,7 +271,7 @@ class OnlineSegmenter:
         keys = self._window.push(stamp_ns, ids[seen], uv[seen], camera)
         coords, age = self._window.history(keys)
 
-        span = _span(age, self.online.min_coverage)
+        span = _fit_span(age, self.online)
         if self._span_limit is not None:
             span = min(span, self._span_limit)
         model_name = self._model_name(span)
@@ -740,6 +740,14 @@ def founding_span(coords: np.ndarray, age: np.ndarray, young: np.ndarray,
     if np.count_nonzero(age[cluster] >= frames) < settings.founding_tracks:
         return None
     return frames + 1
+
+
+def _fit_span(age: np.ndarray, online: OnlineConfig) -> int:
+    """Frames the models are fitted over: the most frames back that ``online.min_coverage`` of
+    the features span, up to ``online.long_span``, and beyond it as far as
+    ``online.long_coverage`` of them span."""
+    span = min(_span(age, online.min_coverage), online.long_span)
+    return max(span, _span(age, online.long_coverage))
 
 
 def _span(age: np.ndarray, coverage: float) -> int:

@@ -18,6 +18,7 @@ from pearl_ros.cli.bench import (
     summarise,
 )
 from pearl_ros.core.errors import InputError
+from pearl_ros.online.config import OnlineConfig
 
 # Two small Hopkins-format sequences written from synthetic scenes (conftest ``hopkins_like``),
 # one articulated and one traffic by their names, both with 2 well-separated motions:
@@ -340,6 +341,15 @@ def test_latency_bench_prints_ordered_percentiles_and_errors_in_range(capsys):
     assert (float(rate), int(window), int(scene), answered) == (30.0, 5, 0, '12/12')
     assert 0 < float(p50) <= float(p95) <= float(p99) <= float(top)
     assert 0 <= float(final) <= 100 and 0 <= float(mean) <= 100
+
+
+@pytest.mark.parametrize('window', [None, 4])
+def test_latency_bench_runs_the_window_parameter_without_windows(capsys, window):
+    given = [] if window is None else ['--set', f'window={window}']
+    assert main(['latency', '--frames', '20', '--features', '60'] + given) == 0
+    rows = [line.split() for line in capsys.readouterr().out.splitlines()
+            if line.split()[:2] == ['pearl', '60']]
+    assert [int(row[3]) for row in rows] == [window or OnlineConfig().window]
 
 
 def test_latency_bench_runs_one_stream_per_scene_seed(capsys):

@@ -169,7 +169,8 @@ def test_an_unknown_name_at_runtime_is_refused_naming_it(ros: Ros) -> None:
                                                Parameter('no_such_thing', value=1)])
     result = _call(ros, future).result
     assert not result.successful and "'no_such_thing'" in result.reason
-    assert _call(ros, client.get_parameters(['window'])).values[0].integer_value == 10
+    assert (_call(ros, client.get_parameters(['window'])).values[0].integer_value
+            == OnlineConfig().window)
 
 
 def _params_file(tmp_path: Path, key: str, body: str = 'label_cost: 300.0') -> Path:
@@ -275,7 +276,7 @@ def test_diagnostics_report_rate_latency_motions_and_features(ros: Ros) -> None:
     values = probe.diagnostics_where(lambda v: v['messages processed'] == '12')
     assert values['motions'] == str(np.unique(last[last >= 0]).size) == '2'
     assert values['features'] == values['features segmented'] == '153'
-    assert values['frames in window'] == '10'  # the default window
+    assert values['frames in window'] == str(min(12, OnlineConfig().window))  # the default
     assert values['messages received'] == '12'
     assert all(values[key] == '0' for key in (
         'malformed messages', 'skipped messages', 'capped messages', 'internal errors',
