@@ -169,6 +169,6 @@ def test_profile_names_the_segmenter_by_cumulative_and_own_time(capsys) -> None:
     (['--features', '60', '--windows', '1'], 'windows >= 2'),
 ])
 def test_bad_latency_arguments_get_one_line(argv: list[str], message: str, capsys) -> None:
-    assert main(['latency', '--frames', '12', *argv]) == 1
+    assert main(['latency', '--frames', '20', *argv]) == 1  # more frames than the window
     err = capsys.readouterr().err
     assert message in err and 'Traceback' not in err and err.count('\n') == 1
