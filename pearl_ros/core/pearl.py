@@ -454,17 +454,22 @@ def fit(
     config = config or PearlConfig()
     generator = np.random.default_rng(rng)
     # A batch two-view fit is fitted again from fresh draws (the noise scale's too) and the
-    # lowest energy kept: its searches end in different minima from seed to seed.
-    restarts = (config.solver.two_view_restarts
-                if batch and init is None and config.model in TWO_VIEW else 1)
-    if restarts == 1:
+    # lowest energy kept: its searches end in different minima from seed to seed. Where the
+    # lowest is one widened model for everything (_widened_one), it is fitted again, up to
+    # one_motion_restarts more times.
+    restarts, more = 1, 0
+    if batch and init is None and config.model in TWO_VIEW:
+        restarts, more = config.solver.two_view_restarts, config.solver.one_motion_restarts
+    if restarts == 1 and more == 0:
         return _run(_steps(tracks, config, generator, init, deadline, init_cost, propose,
                            graph, suspects, init_label_share, cameras, batch))
     # The restarts' searches are compared where they end; the lowest is then settled.
     best: tuple[_Search | None, PearlResult] | None = None
     spent: dict[str, float] = {}  # every fit's seconds per step
-    for restart in range(restarts):
+    for restart in range(restarts + more):
         if restart and _past(deadline):
+            break
+        if restart >= restarts and best is not None and not _widened_one(*best):
             break
         search, result = _run_search(_steps(tracks, config, generator, init, deadline,
                                             init_cost, propose, graph, suspects,
@@ -479,6 +484,16 @@ def fit(
     history = list(result.energy_history)
     _run(_settle(search, history, spent))
     return _result(search, history, result.iterations, spent)
+
+
+def _widened_one(search: _Search | None, result: PearlResult) -> bool:
+    """Whether ``result`` is one motion for everything whose model has widened past every
+    noise level a fresh proposal is offered at: the minimum a batch two-view search falls into
+    most (``SolverSettings.one_motion_restarts``)."""
+    if search is None or result.num_models != 1:
+        return False
+    widest = max(search.setting.solver.proposal_levels) * search.setting.scale
+    return bool(result.sigmas[0] > widest)
 
 
 def _run(steps: Generator[object, None, _T]) -> _T:
