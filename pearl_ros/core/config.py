@@ -266,10 +266,10 @@ class SolverSettings:
         'different minima from seed to seed; the online segmenter\'s fits run once', low=1,
         high=1000)
     one_motion_restarts: int = spec(
-        2, 'batch two-view fits whose least-energy restart is one motion for everything, its '
-        'noise level wider than the widest proposal level: more fits from fresh draws, up to '
-        'this many, until the least is not (the trap their searches fall into most)', low=0,
-        high=1000)
+        2, 'batch fits (two-view ones after their restarts) whose least energy is one motion '
+        'for everything, its noise level wider than the widest proposal level: more fits from '
+        'fresh draws, up to this many, until the least is not (the trap their searches fall '
+        'into most); the online segmenter\'s fits run once', low=0, high=1000)
     fundamental_reweight_steps: int = spec(
         1, 'Sampson-reweighted linear fits of F after the first, when measuring the noise scale',
         low=0, high=100)

@@ -454,12 +454,14 @@ def fit(
     config = config or PearlConfig()
     generator = np.random.default_rng(rng)
     # A batch two-view fit is fitted again from fresh draws (the noise scale's too) and the
-    # lowest energy kept: its searches end in different minima from seed to seed. Where the
-    # lowest is one widened model for everything (_widened_one), it is fitted again, up to
-    # one_motion_restarts more times.
+    # lowest energy kept: its searches end in different minima from seed to seed. Any batch
+    # fit whose lowest is one widened model for everything (_widened_one) is fitted again, up
+    # to one_motion_restarts more times.
     restarts, more = 1, 0
-    if batch and init is None and config.model in TWO_VIEW:
-        restarts, more = config.solver.two_view_restarts, config.solver.one_motion_restarts
+    if batch and init is None:
+        more = config.solver.one_motion_restarts
+        if config.model in TWO_VIEW:
+            restarts = config.solver.two_view_restarts
     if restarts == 1 and more == 0:
         return _run(_steps(tracks, config, generator, init, deadline, init_cost, propose,
                            graph, suspects, init_label_share, cameras, batch))
@@ -488,8 +490,8 @@ def fit(
 
 def _widened_one(search: _Search | None, result: PearlResult) -> bool:
     """Whether ``result`` is one motion for everything whose model has widened past every
-    noise level a fresh proposal is offered at: the minimum a batch two-view search falls into
-    most (``SolverSettings.one_motion_restarts``)."""
+    noise level a fresh proposal is offered at: the minimum a batch search falls into most
+    (``SolverSettings.one_motion_restarts``)."""
     if search is None or result.num_models != 1:
         return False
     widest = max(search.setting.solver.proposal_levels) * search.setting.scale

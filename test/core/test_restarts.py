@@ -1,13 +1,12 @@
-"""Batch two-view fits are fitted again from fresh draws and keep the lowest energy.
+"""Batch fits are fitted again from fresh draws and keep the lowest energy.
 
 ``SolverSettings.two_view_restarts``: a two-view search ends in different minima from seed to
-seed, so a batch fit runs that many independent fits, drawn one after the other from its one
-random generator, and keeps the one of least energy. Where the best of them ends at one motion,
-and its noise level has widened past every level a fresh proposal is offered at, up to
-``SolverSettings.one_motion_restarts`` more fits are drawn, until the least is no longer such an
-answer. The online segmenter's fits run once.
+seed, so a batch two-view fit runs that many independent fits, drawn one after the other from
+its one random generator, and keeps the one of least energy. Where the least of a batch fit's
+(two-view or affine) is one motion whose noise level has widened past every level a fresh
+proposal is offered at, up to ``SolverSettings.one_motion_restarts`` more fits are drawn, until
+the least is no longer such an answer. The online segmenter's fits run once.
 """
-
 from __future__ import annotations
 
 import dataclasses
@@ -50,31 +49,35 @@ def _widened_one(result: pearl.PearlResult) -> bool:
     return result.num_models == 1 and result.sigmas[0] > widest * result.scale
 
 
-def _drawn(tracks: np.ndarray, config: PearlConfig, seed: int) -> list[pearl.PearlResult]:
-    # Oracle: the single fits drawn in turn from one generator; past the first three, drawn on
+def _drawn(tracks: np.ndarray, config: PearlConfig, seed: int, first: int
+           ) -> list[pearl.PearlResult]:
+    # Oracle: the single fits drawn in turn from one generator; past the ``first``, drawn on
     # while the least energy so far is a widened one-motion answer, at most two more.
     generator = np.random.default_rng(seed)
     singles: list[pearl.PearlResult] = []
-    for restart in range(5):
-        if restart >= 3 and not _widened_one(_least(singles)):
+    for restart in range(first + 2):
+        if restart >= first and not _widened_one(_least(singles)):
             break
         singles.append(pearl.fit(tracks, config, generator))
     return singles
 
 
-def _one_motion_fits(tracks: np.ndarray, seed: int, **settings: float) -> tuple[bool, bool]:
+def _one_motion_fits(tracks: np.ndarray, seed: int, model: str = 'fundamental',
+                     **settings: float) -> tuple[bool, bool]:
     """Whether the fit kept the oracle's answer, and whether the oracle's answer differs from
-    the least of the first three single fits (the test can tell the rule from no rule)."""
-    single = PearlConfig(model='fundamental', label_cost=settings.pop('label_cost', 600.0),
+    the least of the first fits a batch fit runs anyway (three two-view fits, one affine fit):
+    the test can tell the rule from no rule."""
+    first = 3 if model == 'fundamental' else 1
+    single = PearlConfig(model=model, label_cost=settings.pop('label_cost', 600.0),
                          solver=SolverSettings(two_view_restarts=1, one_motion_restarts=0,
                                                **settings))
     restarted = dataclasses.replace(single, solver=dataclasses.replace(
         single.solver, two_view_restarts=3, one_motion_restarts=2))
-    singles = _drawn(tracks, single, seed)
+    singles = _drawn(tracks, single, seed, first)
     kept = pearl.fit(tracks, restarted, seed)
     same = (kept.energy == pytest.approx(_least(singles).energy)
             and kept.labels.tolist() == _least(singles).labels.tolist())
-    return same, _least(singles).energy != _least(singles[:3]).energy
+    return same, _least(singles).energy != _least(singles[:first]).energy
 
 
 def test_a_widened_one_motion_answer_is_fitted_again(affine_scene):
@@ -85,6 +88,19 @@ def test_a_widened_one_motion_answer_is_fitted_again(affine_scene):
         tracks, _ = affine_scene(sizes=(60, 40), noise=0.5, seed=seed)
         same, changed = _one_motion_fits(tracks[[0, -1]], seed, label_cost=3000.0,
                                          local_ceiling=0.0)
+        assert same
+        differs.append(changed)
+    assert any(differs)
+
+
+def test_a_widened_one_motion_affine_fit_is_fitted_again(affine_scene):
+    # Over all frames, an affine fit runs once, and again where it ends at one motion past the
+    # proposal levels: two bodies and a label cost above what the second saves give one
+    # affine subspace for both at 6.5-9 noise scales on seeds 0-2, 4 and 5, at 2 on seed 3.
+    differs = []
+    for seed in range(6):
+        tracks, _ = affine_scene(sizes=(60, 40), noise=0.5, seed=seed)
+        same, changed = _one_motion_fits(tracks, seed, model='affine', label_cost=4000.0)
         assert same
         differs.append(changed)
     assert any(differs)
@@ -125,10 +141,28 @@ def test_the_one_motion_restarts_free_kt3dmoseg_seq013_from_one_motion(
     assert np.mean(error[2]) < np.mean(error[0]) - 0.02
 
 
+def test_the_one_motion_restarts_free_hopkins155_people1_from_one_motion(
+        hopkins_root: Path) -> None:
+    # Real data with ground truth: people1, all frames (a walking person and the background).
+    # Over seeds 0-11 one fit ended at one motion on nine seeds, 6.3% of the points wrong,
+    # against 0.4% for two, when measured; the fits drawn again leave fewer such seeds.
+    sequence = hopkins.load_sequence(hopkins_root, 'people1')
+    one, error = {0: 0, 2: 0}, {0: [], 2: []}
+    for seed in range(12):
+        for more in (0, 2):
+            config = PearlConfig(solver=SolverSettings(one_motion_restarts=more))
+            result = pearl.fit(sequence.tracks, config, seed)
+            one[more] += result.num_models == 1
+            error[more].append(misclassification(result.labels, sequence.labels))
+    assert one[0] >= 4
+    assert one[2] < one[0]
+    assert np.mean(error[2]) < np.mean(error[0]) - 0.01
+
+
 @pytest.mark.parametrize('seed', range(3))
 def test_affine_and_online_fits_run_once(affine_scene, seed):
-    # The restarts are the batch two-view fits' alone: an affine fit, and a two-view fit of
-    # the online segmenter (batch=False), come out as with one fit.
+    # The restarts are the batch two-view fits' alone: an affine fit that ends at two motions,
+    # and a two-view fit of the online segmenter (batch=False), come out as with one fit.
     tracks, _ = affine_scene(sizes=(70, 50), noise=0.5, seed=seed)
     for model, view, batch in (('affine', tracks, True), ('fundamental', tracks[[0, -1]], False)):
         once = pearl.fit(view, _config(1, model), seed, batch=batch)
