@@ -545,8 +545,8 @@ class SlicedFit:
     runs a budgeted cold start this way, over as many frames as it takes, instead of letting one
     frame take it all, and answers the frames before it is done with :attr:`labels`. The
     arguments are those of a cold :func:`fit` (no ``init``); its ``deadline``, if given, ends
-    the whole fit early as it ends :func:`fit`. It runs one search: a batch two-view fit's
-    restarts (``SolverSettings.two_view_restarts``) are :func:`fit`'s alone.
+    the whole fit early as it ends :func:`fit`. It runs one search: a batch fit's restarts
+    (``SolverSettings.two_view_restarts``, ``one_motion_restarts``) are :func:`fit`'s alone.
     """
 
     def __init__(self, tracks: np.ndarray, config: PearlConfig | None = None,
