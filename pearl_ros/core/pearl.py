@@ -471,7 +471,7 @@ def fit(
     for restart in range(restarts + more):
         if restart and _past(deadline):
             break
-        if restart >= restarts and best is not None and not _widened_one(*best):
+        if restart >= restarts and best is not None and not _widened_one(best[1], config.solver):
             break
         search, result = _run_search(_steps(tracks, config, generator, init, deadline,
                                             init_cost, propose, graph, suspects,
@@ -488,14 +488,12 @@ def fit(
     return _result(search, history, result.iterations, spent)
 
 
-def _widened_one(search: _Search | None, result: PearlResult) -> bool:
+def _widened_one(result: PearlResult, solver: SolverSettings) -> bool:
     """Whether ``result`` is one motion for everything whose model has widened past every
-    noise level a fresh proposal is offered at: the minimum a batch search falls into most
-    (``SolverSettings.one_motion_restarts``)."""
-    if search is None or result.num_models != 1:
-        return False
-    widest = max(search.setting.solver.proposal_levels) * search.setting.scale
-    return bool(result.sigmas[0] > widest)
+    noise level a fresh proposal is offered at (``solver.proposal_levels``): the minimum a
+    batch search falls into most (``SolverSettings.one_motion_restarts``)."""
+    widest = max(solver.proposal_levels) * result.scale
+    return result.num_models == 1 and bool(result.sigmas[0] > widest)
 
 
 def _run(steps: Generator[object, None, _T]) -> _T:
