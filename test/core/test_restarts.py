@@ -69,7 +69,8 @@ def _one_motion_fits(tracks: np.ndarray, seed: int, model: str = 'fundamental',
     the least of the first fits a batch fit runs anyway (three two-view fits, one affine fit):
     the test can tell the rule from no rule."""
     first = 3 if model == 'fundamental' else 1
-    single = PearlConfig(model=model, label_cost=settings.pop('label_cost', 600.0),
+    label_cost = settings.pop('label_cost', PearlConfig().label_cost)
+    single = PearlConfig(model=model, label_cost=label_cost,
                          solver=SolverSettings(two_view_restarts=1, one_motion_restarts=0,
                                                **settings))
     restarted = dataclasses.replace(single, solver=dataclasses.replace(
