@@ -298,6 +298,10 @@ class SolverSettings:
     founding_tracks: int = spec(
         8, 'streaming: unexplained young tracks in one cluster, at least as old as their median, '
         'that cut the fitted span (founding_scales)', low=1, high=1000000)
+    hold_motions: bool = spec(
+        True, 'streaming: while young tracks cut the fitted span (founding_scales), a motion '
+        'of the last frame that the cut fit merges away is given back to its tracks where a '
+        'warm fit of the tracks that span up to long_span frames keeps it apart')
     energy_rise: float = spec(
         0.05, 'rise of the energy per feature, as a share, on a warm frame without proposals '
         'that makes the next frame propose', low=0.0, high=1e6)

@@ -72,6 +72,9 @@ STATIC_YOUNG = 3.0
 # FOUNDING_CLUSTER others of them among its FOUNDING_NEIGHBOURS nearest features in the image.
 FOUNDING_NEIGHBOURS = 5
 FOUNDING_CLUSTER = 2
+# A motion a fit cut short merged away is given back (OnlineSegmenter._hold) only with at
+# least this many tracks: twice an affine subspace's minimal sample.
+HELD_TRACKS = 8
 # The work of a frame after its fit (numbering the motions, labelling the young tracks) comes
 # out of the frame's budget: the fit stops that much earlier, the most this work took over the
 # last this many frames.
@@ -125,7 +128,8 @@ class OnlineSegmenter:
     config : PearlConfig, optional
         The energy and the cold-start optimiser; its ``solver`` settings also tune the
         segmenter (``rescale_every``, ``young_min_age``, ``subspace_dim``,
-        ``subspace_members``, ``energy_rise``).
+        ``subspace_members``, ``founding_scales``, ``founding_tracks``, ``hold_motions``,
+        ``energy_rise``).
     online : OnlineConfig, optional
         Window, warm start and per-frame budget.
     """
@@ -272,6 +276,7 @@ class OnlineSegmenter:
         coords, age = self._window.history(keys)
 
         span = _fit_span(age, self.online)
+        held = min(span, self.online.long_span)  # what a span cut short is checked over
         if self._span_limit is not None:
             span = min(span, self._span_limit)
         model_name = self._model_name(span)
@@ -309,7 +314,12 @@ class OnlineSegmenter:
                 segments = np.empty(fitted.size, dtype=np.int64)
                 segments[chosen] = result.labels
                 segments[rest] = assign(tracks[:, rest], result, config, cameras)
-            motion_labels[fitted] = self._identify(segments, prior, fitted_keys)
+            numbers = self._identify(segments, prior, fitted_keys)
+            if (self.config.solver.hold_motions and warm and span < held and chosen is None
+                    and cameras is None and model_name not in _TWO_VIEW):
+                numbers = self._hold(coords[-held:], age, fitted, keys, numbers, prior,
+                                     model_name)
+            motion_labels[fitted] = numbers
             static = _static_model(result) if cameras is not None else None
             members = np.flatnonzero(segments == static) if static is not None else fitted[:0]
             static_motion = int(motion_labels[fitted[members[0]]]) if members.size else None
@@ -485,6 +495,49 @@ class OnlineSegmenter:
         else:
             self._quiet += 1
         return result, config
+
+    def _hold(self, coords: np.ndarray, age: np.ndarray, fitted: np.ndarray, keys: np.ndarray,
+              numbers: np.ndarray, prior: np.ndarray, model_name: str) -> np.ndarray:
+        """``numbers`` of the ``fitted`` tracks, with the motions of the last frame (their
+        ``prior``) that a fit cut short by young tracks merged away given back where a warm fit
+        over the frames of ``coords`` keeps them apart.
+
+        Young tracks that found a motion cut the span (:func:`founding_span`), and over a few
+        frames a motion that moves nearly as another does (a car driving ahead of the camera,
+        as the road does near it) joins it, while over ten frames the same tracks tell them
+        apart (KT3DMoSeg ``Seq059_Clip01``; docs/experiments.md). The tracks that span every
+        frame of ``coords`` are fitted again over them, from their last frame's labels (no
+        fresh proposals), at the noise scale of those tracks over those frames, estimated
+        afresh (it reads otherwise over a longer span, and few frames lose a motion). A motion
+        the cut fit lost that keeps a segment there (at least ``HELD_TRACKS`` of its tracks,
+        most of the segment) is given back to those tracks.
+        """
+        frames = coords.shape[0]
+        old = np.flatnonzero(age[fitted] >= frames)  # positions within ``fitted``
+        held_prior = prior[old]
+        lost = np.setdiff1d(held_prior[held_prior != OUTLIER], numbers)
+        deadline = self._deadline()
+        if (lost.size == 0 or old.size <= HELD_TRACKS
+                or (deadline is not None and time.perf_counter() >= deadline)):
+            return numbers
+        tracks = coords[:, fitted[old]]
+        graph = neighbourhood(tracks, keys[fitted[old]], None, self.config.solver,
+                              core_patches=False)
+        scale = noise_scale(tracks, dataclasses.replace(self.config, model=model_name),
+                            self._rng, graph)
+        config = self._config(model_name, scale, 'warm')
+        _, init = np.unique(held_prior, return_inverse=True)
+        init = init.reshape(-1) - int(np.any(held_prior == OUTLIER))
+        result = fit(tracks, config, self._rng, init=init, deadline=deadline,
+                     init_cost=self.online.temporal_cost, propose=False, graph=graph,
+                     init_label_share=self.online.continued_label_cost, batch=False)
+        out: np.ndarray = numbers.copy()
+        for segment in range(result.num_models):
+            members = result.labels == segment
+            number, count = _majority(held_prior[members])
+            if number in lost and count >= HELD_TRACKS and 2 * count > np.count_nonzero(members):
+                out[old[members & (held_prior == number)]] = number
+        return out
 
     def _neighbourhood(self, tracks: np.ndarray, keys: np.ndarray, model_name: str,
                        previous: Neighbourhood | None
@@ -692,6 +745,17 @@ def _static_young(coords: np.ndarray, age: np.ndarray, young: np.ndarray,
         used >= np.minimum(CAMERA_FRAMES, age[young]))
     distance_sq: np.ndarray = np.where(explained, used * np.square(residual), np.inf)
     return distance_sq
+
+
+def _majority(values: np.ndarray) -> tuple[int, int]:
+    """The most common of ``values`` other than -1, and how many times it occurs ((-1, 0) for
+    none)."""
+    values = values[values != OUTLIER]
+    if values.size == 0:
+        return OUTLIER, 0
+    numbers, counts = np.unique(values, return_counts=True)
+    best = int(np.argmax(counts))
+    return int(numbers[best]), int(counts[best])
 
 
 def _chosen(keys: np.ndarray, most: int) -> np.ndarray | None:

@@ -187,3 +187,53 @@ def test_an_object_whose_tracks_churn_is_found_from_its_young_tracks(seed):
         errors[scales] = float(np.mean(rates))
     assert errors[0.0] > 0.15  # the object (23% of the features) is lost without it
     assert errors[5.0] < 0.5 * errors[0.0]
+
+
+def _car_that_stops(seed: int, frames: int = 19, stop: int = 16, life: int = 5):
+    """A panning camera's background (200 tracks that last), a 60-point car that turns and
+    drives against it until frame ``stop`` and then moves with it, and a 60-point object seen
+    through tracks of ``life`` frames each (young tracks that cut the fitted span: founding).
+    Per frame: ids, pixels, truth (0 background, 1 car, 2 object)."""
+    rng = np.random.default_rng(seed)
+    background = rng.uniform([20, 20], [620, 460], (200, 2))
+    middle = np.array([420.0, 300.0])
+    car = middle + rng.uniform(-35, 35, (60, 2))
+    centre = np.array([200.0, 240.0])
+    offsets = rng.uniform(-40, 40, (60, 2))
+    out = []
+    for t in range(frames):
+        pan = np.array([2.0 * t, 0.5 * t])
+        spin = 0.08 * min(t, stop)
+        rot = np.array([[np.cos(spin), -np.sin(spin)], [np.sin(spin), np.cos(spin)]])
+        uv_car = middle + (car - middle) @ rot.T - pan + np.array([-1.5, 1.0]) * min(t, stop)
+        angle = 0.02 * t
+        turn = np.array([[np.cos(angle), -np.sin(angle)], [np.sin(angle), np.cos(angle)]])
+        uv_obj = centre + np.array([3.0 * t, 1.0 * t]) + offsets @ turn.T
+        generation = (t + np.arange(60)) // life
+        ids = np.concatenate([np.arange(260), 1000 + 60 * generation + np.arange(60)])
+        uv = np.vstack([background - pan, uv_car, uv_obj]) + rng.normal(0, 0.3, (320, 2))
+        out.append((ids, uv, np.repeat([0, 1, 2], [200, 60, 60])))
+    return out
+
+
+def test_a_fit_cut_short_by_young_tracks_does_not_merge_a_motion_the_long_span_holds():
+    # Oracle: the car turns and drives against the background through frame 16, so that on
+    # frames 4-18 a right answer keeps it apart (its own motion within the last 10 frames).
+    # The object's young tracks cut the fitted span to 5-6 frames, over which the car's
+    # motion reads as little; hold_motions gives it back where a fit over 10 frames keeps it.
+    apart = {}
+    for hold in (True, False):
+        config = PearlConfig(solver=SolverSettings(hold_motions=hold))
+        count = 0
+        for seed in range(4):
+            segmenter = OnlineSegmenter(config, OnlineConfig(budget_ms=0.0, seed=seed))
+            for t, (ids, uv, _) in enumerate(_car_that_stops(seed)):
+                labels = segmenter.process(1_000_000_000 + t * 33_333_333, ids, uv).labels
+                if t < 4:
+                    continue
+                numbers, counts = np.unique(labels[200:260], return_counts=True)
+                car = numbers[np.argmax(counts)]
+                count += int(counts.max() >= 48 and np.mean(labels[:200] == car) < 0.1)
+        apart[hold] = count
+    assert apart[True] >= 45  # of 60 frames
+    assert apart[False] <= apart[True] - 8
