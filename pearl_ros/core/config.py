@@ -301,7 +301,8 @@ class SolverSettings:
     hold_motions: bool = spec(
         True, 'streaming: while young tracks cut the fitted span (founding_scales), a motion '
         'of the last frame that the cut fit merges away is given back to its tracks where a '
-        'warm fit of the tracks that span up to long_span frames keeps it apart')
+        'warm fit of the tracks that span up to long_span frames keeps it apart, and a motion '
+        'it splits off is merged back where that fit joins it to another')
     energy_rise: float = spec(
         0.05, 'rise of the energy per feature, as a share, on a warm frame without proposals '
         'that makes the next frame propose', low=0.0, high=1e6)

@@ -72,8 +72,8 @@ STATIC_YOUNG = 3.0
 # FOUNDING_CLUSTER others of them among its FOUNDING_NEIGHBOURS nearest features in the image.
 FOUNDING_NEIGHBOURS = 5
 FOUNDING_CLUSTER = 2
-# A motion a fit cut short merged away is given back (OnlineSegmenter._hold) only with at
-# least this many tracks: twice an affine subspace's minimal sample.
+# A motion a fit cut short merged away is given back (held_numbers) only with at least this
+# many tracks: twice an affine subspace's minimal sample.
 HELD_TRACKS = 8
 # The work of a frame after its fit (numbering the motions, labelling the young tracks) comes
 # out of the frame's budget: the fit stops that much earlier, the most this work took over the
@@ -498,26 +498,26 @@ class OnlineSegmenter:
 
     def _hold(self, coords: np.ndarray, age: np.ndarray, fitted: np.ndarray, keys: np.ndarray,
               numbers: np.ndarray, prior: np.ndarray, model_name: str) -> np.ndarray:
-        """``numbers`` of the ``fitted`` tracks, with the motions of the last frame (their
-        ``prior``) that a fit cut short by young tracks merged away given back where a warm fit
-        over the frames of ``coords`` keeps them apart.
+        """``numbers`` of the ``fitted`` tracks, checked over the frames of ``coords`` where a
+        fit cut short by young tracks lost a motion of the last frame (their ``prior``) or
+        split a new one off (:func:`held_numbers`).
 
         Young tracks that found a motion cut the span (:func:`founding_span`), and over a few
         frames a motion that moves nearly as another does (a car driving ahead of the camera,
         as the road does near it) joins it, while over ten frames the same tracks tell them
         apart (KT3DMoSeg ``Seq059_Clip01``; docs/experiments.md). The tracks that span every
-        frame of ``coords`` are fitted again over them, from their last frame's labels (no
-        fresh proposals), at the noise scale of those tracks over those frames, estimated
-        afresh (it reads otherwise over a longer span, and few frames lose a motion). A motion
-        the cut fit lost that keeps a segment there (at least ``HELD_TRACKS`` of its tracks,
-        most of the segment) is given back to those tracks.
+        frame of ``coords`` are fitted again over them, from the cut fit's numbers and the
+        lost motions' tracks from their last frame's (no fresh proposals), at the noise scale
+        of those tracks over those frames, estimated afresh (it reads otherwise over a longer
+        span, and few frames call for the check).
         """
         frames = coords.shape[0]
         old = np.flatnonzero(age[fitted] >= frames)  # positions within ``fitted``
-        held_prior = prior[old]
+        held_prior, current = prior[old], numbers[old]
         lost = np.setdiff1d(held_prior[held_prior != OUTLIER], numbers)
+        new = np.setdiff1d(current[current != OUTLIER], prior)
         deadline = self._deadline()
-        if (lost.size == 0 or old.size <= HELD_TRACKS
+        if ((lost.size == 0 and new.size == 0) or old.size <= HELD_TRACKS
                 or (deadline is not None and time.perf_counter() >= deadline)):
             return numbers
         tracks = coords[:, fitted[old]]
@@ -526,17 +526,14 @@ class OnlineSegmenter:
         scale = noise_scale(tracks, dataclasses.replace(self.config, model=model_name),
                             self._rng, graph)
         config = self._config(model_name, scale, 'warm')
-        _, init = np.unique(held_prior, return_inverse=True)
-        init = init.reshape(-1) - int(np.any(held_prior == OUTLIER))
+        start = np.where(np.isin(held_prior, lost), held_prior, current)
+        _, init = np.unique(start, return_inverse=True)
+        init = init.reshape(-1) - int(np.any(start == OUTLIER))
         result = fit(tracks, config, self._rng, init=init, deadline=deadline,
                      init_cost=self.online.temporal_cost, propose=False, graph=graph,
                      init_label_share=self.online.continued_label_cost, batch=False)
         out: np.ndarray = numbers.copy()
-        for segment in range(result.num_models):
-            members = result.labels == segment
-            number, count = _majority(held_prior[members])
-            if number in lost and count >= HELD_TRACKS and 2 * count > np.count_nonzero(members):
-                out[old[members & (held_prior == number)]] = number
+        out[old] = held_numbers(current, start, result.labels, lost, new)
         return out
 
     def _neighbourhood(self, tracks: np.ndarray, keys: np.ndarray, model_name: str,
@@ -745,6 +742,35 @@ def _static_young(coords: np.ndarray, age: np.ndarray, young: np.ndarray,
         used >= np.minimum(CAMERA_FRAMES, age[young]))
     distance_sq: np.ndarray = np.where(explained, used * np.square(residual), np.inf)
     return distance_sq
+
+
+def held_numbers(current: np.ndarray, start: np.ndarray, segments: np.ndarray,
+                 lost: np.ndarray, new: np.ndarray) -> np.ndarray:
+    """The motion numbers of tracks after a fit cut short (``current``), checked by a fit of
+    the same tracks over a longer span that started from ``start`` (``current``, but the
+    tracks of the ``lost`` motions on their last frame's numbers) and ended at ``segments``
+    (0..K-1, -1).
+
+    A lost motion is given back to its tracks in a segment of which they are most and at
+    least ``HELD_TRACKS``. A ``new`` motion (split off in the cut fit) whose tracks mostly
+    fall in a segment that most started as another motion, neither new nor lost, takes that
+    motion's number. Every other track keeps its ``current`` number.
+    """
+    out: np.ndarray = current.copy()
+    for segment in range(int(segments.max()) + 1 if segments.size else 0):
+        members = segments == segment
+        number, count = _majority(start[members])
+        if number == OUTLIER or 2 * count <= np.count_nonzero(members):
+            continue
+        if number in lost:
+            if count >= HELD_TRACKS:
+                out[members & (start == number)] = number
+        elif number not in new:
+            for split in new.tolist():
+                tracks = start == split
+                if 2 * np.count_nonzero(members & tracks) > np.count_nonzero(tracks):
+                    out[tracks] = number
+    return out
 
 
 def _majority(values: np.ndarray) -> tuple[int, int]:

@@ -12,7 +12,12 @@ from pearl_ros.core.config import PearlConfig, SolverSettings
 from pearl_ros.core.metrics import misclassification
 from pearl_ros.datasets.robot import robot_stream
 from pearl_ros.online.config import OnlineConfig
-from pearl_ros.online.segmenter import OnlineSegmenter, _nearest_subspace, founding_span
+from pearl_ros.online.segmenter import (
+    OnlineSegmenter,
+    _nearest_subspace,
+    founding_span,
+    held_numbers,
+)
 
 
 def _brute_force(coords, age, fitted, fitted_labels, young):
@@ -237,3 +242,39 @@ def test_a_fit_cut_short_by_young_tracks_does_not_merge_a_motion_the_long_span_h
         apart[hold] = count
     assert apart[True] >= 45  # of 60 frames
     assert apart[False] <= apart[True] - 8
+
+
+def test_held_numbers_follow_the_rule_counted_by_hand():
+    # 40 tracks. The cut fit numbered them 0 (30, the background, which took motion 1's ten
+    # tracks) and 7 (a new motion split off from the background: 10 tracks). The fit over the
+    # longer span started from those numbers, motion 1's tracks on 1 (lost).
+    current = np.array([0] * 20 + [0] * 10 + [7] * 10)
+    start = np.array([0] * 20 + [1] * 10 + [7] * 10)
+    lost, new = np.array([1]), np.array([7])
+    # It keeps motion 1 apart and joins 7 to the background: 1 given back, 7 merged back.
+    segments = np.array([0] * 20 + [1] * 10 + [0] * 10)
+    expected = np.array([0] * 20 + [1] * 10 + [0] * 10)
+    np.testing.assert_array_equal(held_numbers(current, start, segments, lost, new), expected)
+    # It keeps both apart: 1 given back, 7 stays.
+    segments = np.array([0] * 20 + [1] * 10 + [2] * 10)
+    expected = np.array([0] * 20 + [1] * 10 + [7] * 10)
+    np.testing.assert_array_equal(held_numbers(current, start, segments, lost, new), expected)
+    # It merges motion 1 too: nothing given back.
+    segments = np.array([0] * 30 + [2] * 10)
+    np.testing.assert_array_equal(held_numbers(current, start, segments, lost, new), current)
+    # Fewer than 8 of motion 1's tracks in its segment (7 of them, 3 to the background).
+    segments = np.array([0] * 23 + [1] * 7 + [2] * 10)
+    expected = current.copy()
+    np.testing.assert_array_equal(held_numbers(current, start, segments, lost, new), expected)
+    # Motion 1's tracks only half of their segment (10 of 20, with 10 background tracks).
+    segments = np.array([0] * 10 + [1] * 20 + [2] * 10)
+    np.testing.assert_array_equal(held_numbers(current, start, segments, lost, new), current)
+    # Half of 7's tracks with the background: not most of them, 7 stays.
+    segments = np.array([0] * 20 + [1] * 10 + [0] * 5 + [2] * 5)
+    expected = np.array([0] * 20 + [1] * 10 + [7] * 10)
+    np.testing.assert_array_equal(held_numbers(current, start, segments, lost, new), expected)
+    # Most of 7's tracks (7 of 10) joined to the segment of the lost motion 1, whose tracks
+    # are most of it (10 of 17): 1 is given back, 7 is not merged into a motion given back.
+    segments = np.array([0] * 20 + [1] * 17 + [2] * 3)
+    expected = np.array([0] * 20 + [1] * 10 + [7] * 10)
+    np.testing.assert_array_equal(held_numbers(current, start, segments, lost, new), expected)
