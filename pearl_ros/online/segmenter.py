@@ -453,8 +453,7 @@ class OnlineSegmenter:
         deadline = self._deadline()
         if warm:
             config = self._config(model_name, noise, 'warm')
-            _, init = np.unique(prior, return_inverse=True)
-            init = init.reshape(-1) - int(np.any(prior == OUTLIER))
+            init = _start_segments(prior)
         elif deadline is not None:
             # Without a warm start every frame is a cold fit within the frame's budget: one
             # round of num_proposals, the round the budget leaves time for.
@@ -527,9 +526,7 @@ class OnlineSegmenter:
                             self._rng, graph)
         config = self._config(model_name, scale, 'warm')
         start = np.where(np.isin(held_prior, lost), held_prior, current)
-        _, init = np.unique(start, return_inverse=True)
-        init = init.reshape(-1) - int(np.any(start == OUTLIER))
-        result = fit(tracks, config, self._rng, init=init, deadline=deadline,
+        result = fit(tracks, config, self._rng, init=_start_segments(start), deadline=deadline,
                      init_cost=self.online.temporal_cost, propose=False, graph=graph,
                      init_label_share=self.online.continued_label_cost, batch=False)
         out: np.ndarray = numbers.copy()
@@ -645,12 +642,9 @@ class OnlineSegmenter:
         claims = []
         for r in open_.tolist():
             members = segments == r
-            held = before[members & (before != OUTLIER)]
-            if held.size:
-                values, counts = np.unique(held, return_counts=True)
-                best = int(np.argmax(counts))
-                if 2 * counts[best] > np.count_nonzero(members):
-                    claims.append((-int(counts[best]), r, int(values[best])))
+            value, count = _majority(before[members])
+            if 2 * count > np.count_nonzero(members):
+                claims.append((-count, r, value))
         taken = set(number[number != OUTLIER].tolist())
         for _, r, value in sorted(claims):
             if value not in taken:
@@ -770,6 +764,14 @@ def held_numbers(current: np.ndarray, start: np.ndarray, segments: np.ndarray,
                 tracks = start == split
                 if 2 * np.count_nonzero(members & tracks) > np.count_nonzero(tracks):
                     out[tracks] = number
+    return out
+
+
+def _start_segments(numbers: np.ndarray) -> np.ndarray:
+    """A warm start's segments (0..K-1, -1) from the motion ``numbers`` (-1 outlier) the
+    tracks carry."""
+    _, segments = np.unique(numbers, return_inverse=True)
+    out: np.ndarray = segments.reshape(-1) - int(np.any(numbers == OUTLIER))
     return out
 
 

@@ -198,29 +198,24 @@ def test_an_object_whose_tracks_churn_is_found_from_its_young_tracks(seed):
 
 
 def _car_that_stops(seed: int, frames: int = 19, stop: int = 16, life: int = 5):
-    """A panning camera's background (200 tracks that last), a 60-point car that turns and
-    drives against it until frame ``stop`` and then moves with it, and a 60-point object seen
-    through tracks of ``life`` frames each (young tracks that cut the fitted span: founding).
-    Per frame: ids, pixels, truth (0 background, 1 car, 2 object)."""
-    rng = np.random.default_rng(seed)
-    background = rng.uniform([20, 20], [620, 460], (200, 2))
+    """:func:`_churning_object`'s scene (its object seen through tracks of ``life`` frames:
+    young tracks that cut the fitted span) with a 60-point car between its background and its
+    object, which turns and drives against the background until frame ``stop`` and then moves
+    with it. Per frame: ids, pixels, truth (0 background, 1 car, 2 object)."""
+    rng = np.random.default_rng(1000 + seed)
     middle = np.array([420.0, 300.0])
     car = middle + rng.uniform(-35, 35, (60, 2))
-    centre = np.array([200.0, 240.0])
-    offsets = rng.uniform(-40, 40, (60, 2))
     out = []
-    for t in range(frames):
-        pan = np.array([2.0 * t, 0.5 * t])
+    for t, (ids, uv, truth) in enumerate(_churning_object(seed, frames, life)):
         spin = 0.08 * min(t, stop)
         rot = np.array([[np.cos(spin), -np.sin(spin)], [np.sin(spin), np.cos(spin)]])
-        uv_car = middle + (car - middle) @ rot.T - pan + np.array([-1.5, 1.0]) * min(t, stop)
-        angle = 0.02 * t
-        turn = np.array([[np.cos(angle), -np.sin(angle)], [np.sin(angle), np.cos(angle)]])
-        uv_obj = centre + np.array([3.0 * t, 1.0 * t]) + offsets @ turn.T
-        generation = (t + np.arange(60)) // life
-        ids = np.concatenate([np.arange(260), 1000 + 60 * generation + np.arange(60)])
-        uv = np.vstack([background - pan, uv_car, uv_obj]) + rng.normal(0, 0.3, (320, 2))
-        out.append((ids, uv, np.repeat([0, 1, 2], [200, 60, 60])))
+        pan = np.array([2.0 * t, 0.5 * t])  # the background's, as _churning_object moves it
+        uv_car = (middle + (car - middle) @ rot.T - pan + np.array([-1.5, 1.0]) * min(t, stop)
+                  + rng.normal(0, 0.3, (60, 2)))
+        out.append((np.concatenate([ids[:200], 200 + np.arange(60), ids[200:]]),
+                    np.vstack([uv[:200], uv_car, uv[200:]]),
+                    np.concatenate([truth[:200], np.ones(60, dtype=truth.dtype),
+                                    2 * truth[200:]])))
     return out
 
 
