@@ -307,11 +307,12 @@ class SolverSettings:
         0.05, 'rise of the energy per feature, as a share, on a warm frame without proposals '
         'that makes the next frame propose', low=0.0, high=1e6)
     restart_motions: int = spec(
-        1, 'streaming: a warm fit with fresh proposals that ends with at most this many '
+        2, 'streaming: a warm fit with fresh proposals that ends with at most this many '
         'motions is checked against a cold fit of the same tracks (the warm samples and '
         'rounds, no start labels), which it gives way to where that is lower in energy, the '
-        'temporal cost of its labels counted: one wide motion refitted to a new object too '
-        'leaves no expansion a gain; 0 = never', low=0, high=1000000)
+        'temporal cost of its labels counted: one wide motion refitted to a new object too, or '
+        'to two objects an early fit joined, leaves no expansion a gain; 0 = never',
+        low=0, high=1000000)
 
     def __post_init__(self) -> None:
         check_fields(self)

@@ -82,7 +82,7 @@ TAIL_FRAMES = 10
 # A fit's last step ends past its deadline (by up to a move or a refit): the fits stop that
 # much earlier, the most it was over the last this many frames (a second at 30 Hz).
 OVERRUN_FRAMES = 30
-# Within a budget, the cold fit that checks a one-motion warm fit (SolverSettings.
+# Within a budget, the cold fit that checks a warm fit of few motions (SolverSettings.
 # restart_motions) starts only where the time left holds this many times the warm fit's own
 # (check_room).
 RESTART_ROOM = 2.0
@@ -524,7 +524,7 @@ class OnlineSegmenter:
                               core_patches=False)
         scale = noise_scale(tracks, dataclasses.replace(self.config, model=model_name),
                             self._rng, graph)
-        config = self._config(model_name, scale, 'warm')
+        config = self._config(model_name, scale, 'warm', keep=False)
         start = np.where(np.isin(held_prior, lost), held_prior, current)
         result = fit(tracks, config, self._rng, init=_start_segments(start), deadline=deadline,
                      init_cost=self.online.temporal_cost, propose=False, graph=graph,
@@ -556,23 +556,28 @@ class OnlineSegmenter:
         noise = self.config.noise or self._scale(tracks, model_name, graph, suspects)
         return graph, noise, suspects
 
-    def _config(self, model_name: str, noise: float, kind: str) -> PearlConfig:
+    def _config(self, model_name: str, noise: float, kind: str, keep: bool = True
+                ) -> PearlConfig:
         """The fit's configuration: ``self.config`` with ``model_name`` and ``noise``, and for a
         ``kind`` of fit ``'warm'`` the warm-start settings, ``'slice'`` a budgeted cold fit's
-        one round of proposals, ``'cold'`` none. Kept until the next change: building and
-        checking one costs 0.5 ms, a frame's worth of warm fit."""
+        one round of proposals, ``'cold'`` none. Kept (``keep``) until the next change:
+        building and checking one costs 0.5 ms, a frame's worth of warm fit; a fit of its own
+        scale that the next frame does not repeat (:meth:`_hold`'s) leaves the frames' one
+        in place."""
         key = (model_name, noise, kind)
-        if self._configs[0] != key:
-            config = dataclasses.replace(self.config, model=model_name, noise=noise)
-            online = self.online
-            if kind == 'warm':
-                config = dataclasses.replace(config, num_proposals=online.warm_proposals,
-                                             rounds=online.warm_rounds,
-                                             unit_quantile=online.warm_unit_quantile)
-            elif kind == 'slice':
-                config = dataclasses.replace(config, rounds=1)
+        if self._configs[0] == key:
+            return self._configs[1]
+        config = dataclasses.replace(self.config, model=model_name, noise=noise)
+        online = self.online
+        if kind == 'warm':
+            config = dataclasses.replace(config, num_proposals=online.warm_proposals,
+                                         rounds=online.warm_rounds,
+                                         unit_quantile=online.warm_unit_quantile)
+        elif kind == 'slice':
+            config = dataclasses.replace(config, rounds=1)
+        if keep:
             self._configs = (key, config)
-        return self._configs[1]
+        return config
 
     def _scale(self, tracks: np.ndarray, model_name: str, graph: Neighbourhood,
                suspects: np.ndarray | None) -> float:
@@ -923,15 +928,16 @@ def _nearest_subspace(coords: np.ndarray, age: np.ndarray, fitted: np.ndarray,
 
 def check_room(propose: bool, due: float | None, fit_seconds: float, now: float,
                deadline: float | None) -> tuple[bool, float | None]:
-    """Whether a warm fit that ended with one motion at ``now`` (a :func:`time.perf_counter`
-    value, the fit having taken ``fit_seconds``) is checked against a cold fit now, and the
-    time to keep free for a check put off to the next frame (None: none put off).
+    """Whether a warm fit that ended with few motions (``restart_motions``) at ``now`` (a
+    :func:`time.perf_counter` value, the fit having taken ``fit_seconds``) is checked against a
+    cold fit now, and the time to keep free for a check put off to the next frame (None: none
+    put off).
 
     A frame with fresh proposals (``propose``) is checked where the time left before its
     ``deadline`` (None: no budget) holds ``RESTART_ROOM`` times its own fit's (a cold fit takes
     1.3-1.8 times a warm one with proposals, the 10-90% range on Hopkins155's streams); where
     it does not, the check is put off to the next frame, which runs it if its own warm fit
-    still ended with one motion and the time left holds the room the first frame asked for
+    still ended with as few and the time left holds the room the first frame asked for
     (``due``). Most next frames have no fresh proposals, whose warm fits are the lighter.
     """
     if propose:

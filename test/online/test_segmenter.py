@@ -318,7 +318,7 @@ def _fit_calls(monkeypatch, online, read):
 def test_warm_frames_measure_pairs_in_their_own_unit(monkeypatch):
     # The segmenter hands fit a configuration: the cold start keeps unit_quantile, every fit
     # of a warm frame takes warm_unit_quantile (a fit without init there is the check of a
-    # warm fit that ends with one motion, solver.restart_motions).
+    # warm fit that ends with few motions, solver.restart_motions).
     online = dataclasses.replace(UNTIMED, warm_unit_quantile=0.3)
     given = _fit_calls(monkeypatch, online, lambda config, kwargs: config.unit_quantile)
     assert given[0] == (False, PearlConfig().unit_quantile)
