@@ -9,6 +9,7 @@ fit's labels are charged the temporal term a warm fit would charge them (:func:`
 from __future__ import annotations
 
 import itertools
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
@@ -79,16 +80,22 @@ def test_a_check_the_budget_has_no_room_for_is_put_off_to_the_next_frame() -> No
     assert check_room(True, due, 0.001, later, later + 2.5 * 0.001) == (True, None)
 
 
+def _streamed(root: Path, clip: str, solver: SolverSettings, seed: int
+              ) -> Iterator[tuple[np.ndarray, np.ndarray]]:
+    """Each frame's labels and truth, the KT3DMoSeg clip fed frame by frame without a budget."""
+    path = next(p for p in kt3dmoseg.clip_paths(root) if clip in p.name)
+    segmenter = OnlineSegmenter(PearlConfig(solver=solver), OnlineConfig(budget_ms=0, seed=seed))
+    for t, (ids, uv, truth) in enumerate(kt3dmoseg.load_clip(path).frames()):
+        yield segmenter.process(1_000_000_000 + t * 33_333_333, ids, uv).labels, truth
+
+
 def _stream_errors(root: Path, clip: str, restart: int, seed: int,
                    founding: float = 0.0) -> list[float]:
     # Young tracks founding motions off by default: the car's young tracks can found its
     # motion too, which would hide what the restart alone does.
-    path = next(p for p in kt3dmoseg.clip_paths(root) if clip in p.name)
     solver = SolverSettings(restart_motions=restart, founding_scales=founding)
-    segmenter = OnlineSegmenter(PearlConfig(solver=solver), OnlineConfig(budget_ms=0, seed=seed))
-    return [misclassification(segmenter.process(1_000_000_000 + t * 33_333_333, ids, uv).labels,
-                              truth)
-            for t, (ids, uv, truth) in enumerate(kt3dmoseg.load_clip(path).frames())]
+    return [misclassification(labels, truth)
+            for labels, truth in _streamed(root, clip, solver, seed)]
 
 
 def test_the_restart_finds_the_car_a_warm_start_keeps_in_the_background(
@@ -100,7 +107,7 @@ def test_the_restart_finds_the_car_a_warm_start_keeps_in_the_background(
     for seed in range(3):
         errors = _stream_errors(kt3dmoseg_root, 'Seq071_Clip01', 1, seed)
         assert np.mean(errors[5:13]) < 0.15, (seed, np.round(errors, 2))
-        # And with the defaults, founding included.
+        # And with founding at its default.
         errors = _stream_errors(kt3dmoseg_root, 'Seq071_Clip01', 1, seed,
                                 founding=SolverSettings().founding_scales)
         assert np.mean(errors[5:13]) < 0.15, (seed, np.round(errors, 2))
@@ -109,12 +116,8 @@ def test_the_restart_finds_the_car_a_warm_start_keeps_in_the_background(
 def _joined(root: Path, clip: str, restart: int, seed: int, a: int, b: int) -> list[float]:
     # Per frame, the share of true motion b's points that carry the label most of motion a's
     # points carry (defaults but restart_motions).
-    path = next(p for p in kt3dmoseg.clip_paths(root) if clip in p.name)
-    segmenter = OnlineSegmenter(PearlConfig(solver=SolverSettings(restart_motions=restart)),
-                                OnlineConfig(budget_ms=0, seed=seed))
     shares = []
-    for t, (ids, uv, truth) in enumerate(kt3dmoseg.load_clip(path).frames()):
-        labels = segmenter.process(1_000_000_000 + t * 33_333_333, ids, uv).labels
+    for labels, truth in _streamed(root, clip, SolverSettings(restart_motions=restart), seed):
         on_a = labels[(truth == a) & (labels >= 0)]
         majority = np.bincount(on_a).argmax() if on_a.size else -2
         shares.append(float(np.mean(labels[truth == b] == majority)))
