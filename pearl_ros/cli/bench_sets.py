@@ -35,6 +35,10 @@ SET_FOLDERS = {'hopkins155': 'hopkins155', 'kt3dmoseg': 'kt3dmoseg_dev',
 SUITE_OUTLIERS = 0.2  # share of outlier tracks added to every fifth Hopkins155 sequence
 SUITE_EVERY = 5
 SUITE_ROBOT_SEEDS = (0, 1, 2)
+# More robot-like scenes, scored apart from the first three (their own row), so that a change
+# tuned on those three shows whether it holds on others.
+SUITE_ROBOT_MORE = tuple(range(3, 21))
+ROBOT_MORE = 'robot_synthetic_3_20'
 
 
 def add_commands(commands: Any) -> None:
@@ -85,7 +89,8 @@ def add_commands(commands: Any) -> None:
         'suite', help='every data set in one table',
         description='Hopkins155 (all frames, two frames, stream; every fifth sequence with 20%% '
         'outlier tracks), KT3DMoSeg (all, two, stream), AdelaideRMF F and robot-like synthetic '
-        'streams, with the same parameters: one line per set.')
+        'streams (scenes 0-2, with and without their cameras; scenes 3-20 on a line of their '
+        'own), with the same parameters: one line per set.')
     suite.add_argument('--data', metavar='DIR', default=None,
                        help='folder holding hopkins155/, kt3dmoseg_dev/, adelaidermf_f_dev/ '
                        '(default: $PEARL_DATA, else ../shared/data)')
@@ -250,6 +255,8 @@ def _suite_items(data: Path, args: argparse.Namespace) -> list[tuple[str, Any]]:
     for mode in ('stream', 'cameras'):
         items += [('set', Task('robot', str(s), mode, config, online, args.seed))
                   for s in SUITE_ROBOT_SEEDS]
+    items += [('set', Task('robot', str(s), 'stream', config, online, args.seed,
+                           dataset=ROBOT_MORE)) for s in SUITE_ROBOT_MORE]
     return items
 
 
@@ -259,6 +266,8 @@ def _dataset_of(item: tuple[str, Any]) -> str:
         return f'hopkins155_{task.frames}'
     if kind == 'stream':
         return 'hopkins155_stream'
+    if task.dataset:
+        return str(task.dataset)
     return {'hopkins_outliers': 'hopkins155_outliers', 'kt3dmoseg': f'kt3dmoseg_{task.mode}',
             'adelaide': 'adelaidermf_f',
             'robot': 'robot_synthetic_cameras' if task.mode == 'cameras' else 'robot_synthetic',

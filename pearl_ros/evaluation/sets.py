@@ -75,6 +75,7 @@ class Task:
     outliers: float = 0.0
     lens: float = 0.0  # robot streams: radial distortion k1 of the camera's lens (0: none)
     undistort: bool = False  # and whether the segmenter gets the pixels undistorted
+    dataset: str = ''  # robot streams: the set scored, where not the mode's own row
 
 
 def score(dataset: str, name: str, pred: np.ndarray, truth: np.ndarray, seconds: float,
@@ -230,7 +231,8 @@ def _robot(task: Task) -> Score:
         scene = robot_scene(len(frames), seed)
         cameras = [scene.camera(t) for t in range(len(frames))]
     labels, truth, found, seconds, half, identity = _stream(frames, task.config, online, cameras)
-    name = 'robot_synthetic_cameras' if cameras is not None else 'robot_synthetic'
+    name = task.dataset or ('robot_synthetic_cameras' if cameras is not None
+                            else 'robot_synthetic')
     return score(name, f'seed{seed}', labels, truth, seconds, found, half_pct=half,
                  identity=identity)
 

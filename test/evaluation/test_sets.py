@@ -206,23 +206,59 @@ def test_a_task_error_names_its_item(tmp_path: Path) -> None:
                       OnlineConfig()))
 
 
-def test_every_suite_item_takes_the_seed_given(tmp_path: Path) -> None:
-    import argparse
+def _empty_suite_files(root: Path) -> None:
+    """One empty file of each set the suite lists from disk (it lists them, never reads them)."""
+    from pearl_ros.cli.bench_sets import SET_FOLDERS
 
-    from pearl_ros.cli.bench_sets import SET_FOLDERS, _suite_items
-
-    # The suite only lists the files here: empty ones will do.
     for path in (f'{SET_FOLDERS["hopkins155"]}/seqa/seqa_truth.mat',
                  f'{SET_FOLDERS["kt3dmoseg"]}/Seq001_Clip01_Tracks.mat',
                  f'{SET_FOLDERS["adelaide"]}/pair.mat'):
-        (tmp_path / path).parent.mkdir(parents=True, exist_ok=True)
-        (tmp_path / path).touch()
+        (root / path).parent.mkdir(parents=True, exist_ok=True)
+        (root / path).touch()
+
+
+def test_every_suite_item_takes_the_seed_given(tmp_path: Path) -> None:
+    import argparse
+
+    from pearl_ros.cli.bench_sets import _suite_items
+
+    _empty_suite_files(tmp_path)
     items = _suite_items(tmp_path, argparse.Namespace(seed=7, set=[]))
     kinds = {kind for kind, _ in items}
     assert kinds == {'hopkins', 'stream', 'set'}
     for kind, task in items:
         seed = task.online.seed if kind == 'stream' else task.seed
         assert seed == 7, (kind, task)
+
+
+def test_the_suite_scores_robot_scenes_beyond_the_first_three_on_their_own_line(
+        tmp_path: Path) -> None:
+    import argparse
+
+    from pearl_ros.cli.bench_sets import _dataset_of, _suite_items
+
+    _empty_suite_files(tmp_path)
+    # Oracle: the scene numbers each robot line is built from, listed here.
+    items = _suite_items(tmp_path, argparse.Namespace(seed=0, set=[]))
+    scenes: dict[str, list[int]] = {}
+    for item in items:
+        kind, task = item
+        if kind == 'set' and task.kind == 'robot':
+            scenes.setdefault(_dataset_of(item), []).append(int(task.source))
+    assert scenes == {'robot_synthetic': [0, 1, 2], 'robot_synthetic_cameras': [0, 1, 2],
+                      'robot_synthetic_3_20': list(range(3, 21))}
+    held_out = next(t for k, t in items if k == 'set' and t.source == '3')
+    assert held_out.mode == 'stream'  # no cameras
+
+
+def test_a_robot_stream_scored_for_another_line_carries_its_name() -> None:
+    online = OnlineConfig(budget_ms=0.0)
+    task = Task('robot', '3', 'stream', PearlConfig(), online, dataset='robot_synthetic_3_20')
+    result = run_task(task)
+    assert result.dataset == 'robot_synthetic_3_20' and result.name == 'seed3'
+    plain = run_task(Task('robot', '3', 'stream', PearlConfig(), online))
+    assert plain.dataset == 'robot_synthetic'
+    assert plain.error_pct == result.error_pct  # the same stream, only its line differs
 
 
 def test_a_robot_stream_through_a_lens_and_undistorted_again_is_the_pinhole_stream(capsys):
