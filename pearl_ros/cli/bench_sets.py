@@ -25,6 +25,7 @@ from pearl_ros.evaluation.sets import (
     Task,
     format_seed_means,
     format_summaries,
+    robot_dataset,
     run_task,
     summarise,
 )
@@ -266,12 +267,10 @@ def _dataset_of(item: tuple[str, Any]) -> str:
         return f'hopkins155_{task.frames}'
     if kind == 'stream':
         return 'hopkins155_stream'
-    if task.dataset:
-        return str(task.dataset)
+    if task.kind == 'robot':
+        return robot_dataset(task)
     return {'hopkins_outliers': 'hopkins155_outliers', 'kt3dmoseg': f'kt3dmoseg_{task.mode}',
-            'adelaide': 'adelaidermf_f',
-            'robot': 'robot_synthetic_cameras' if task.mode == 'cameras' else 'robot_synthetic',
-            }[task.kind]
+            'adelaide': 'adelaidermf_f'}[task.kind]
 
 
 def suite(args: argparse.Namespace) -> int:

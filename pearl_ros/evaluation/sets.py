@@ -213,6 +213,12 @@ def _hopkins_outliers(task: Task) -> Score:
                  outliers_apart=True)
 
 
+def robot_dataset(task: Task) -> str:
+    """The set a robot stream is scored on: ``task.dataset``, else its mode's own line."""
+    return task.dataset or ('robot_synthetic_cameras' if task.mode == 'cameras'
+                            else 'robot_synthetic')
+
+
 def _robot(task: Task) -> Score:
     """A robot-like synthetic stream (:mod:`pearl_ros.datasets.robot`) of seed ``source``,
     final frame scored, its outlier tracks a group of their own; mode ``cameras`` gives the
@@ -231,9 +237,7 @@ def _robot(task: Task) -> Score:
         scene = robot_scene(len(frames), seed)
         cameras = [scene.camera(t) for t in range(len(frames))]
     labels, truth, found, seconds, half, identity = _stream(frames, task.config, online, cameras)
-    name = task.dataset or ('robot_synthetic_cameras' if cameras is not None
-                            else 'robot_synthetic')
-    return score(name, f'seed{seed}', labels, truth, seconds, found, half_pct=half,
+    return score(robot_dataset(task), f'seed{seed}', labels, truth, seconds, found, half_pct=half,
                  identity=identity)
 
 
