@@ -16,6 +16,8 @@ import numpy as np
 import pytest
 import scipy.io
 
+from pearl_ros.core.labels import OUTLIER
+
 REPO = Path(__file__).resolve().parents[1]
 DATA_ENV = 'PEARL_DATA'
 
@@ -143,9 +145,41 @@ def make_gap_scene(same_body: bool, frames: int = 12) -> tuple[np.ndarray, np.nd
     return tracks, np.repeat([0, 1], 60)
 
 
+def make_two_view_scene(seed: int, mismatches: float = 0.3) -> tuple[np.ndarray, np.ndarray]:
+    """Two views (the first and last frames of ``make_affine_scene``'s two bodies of 120 and 90
+    points, 0.3 px noise) with a share ``mismatches`` of the points moved anywhere in the second
+    view; tracks (2, N, 2) px and labels (N,), ``OUTLIER`` for the moved points."""
+    tracks, truth = make_affine_scene(sizes=(120, 90), noise=0.3, seed=seed)
+    tracks = tracks[[0, -1]].copy()
+    rng = np.random.default_rng(seed)
+    bad = rng.random(truth.size) < mismatches
+    low, high = tracks.reshape(-1, 2).min(axis=0), tracks.reshape(-1, 2).max(axis=0)
+    tracks[1, bad] = rng.uniform(low, high, (int(bad.sum()), 2))
+    return tracks, np.where(bad, OUTLIER, truth)
+
+
+def same_partition(a: np.ndarray, b: np.ndarray) -> bool:
+    """Whether labellings ``a`` and ``b`` group the points alike, whatever their numbers, and
+    label the same points outliers."""
+    if not np.array_equal(np.asarray(a) == OUTLIER, np.asarray(b) == OUTLIER):
+        return False
+    pairs = np.unique(np.stack([a, b]), axis=1).shape[1]
+    return bool(pairs == np.unique(a).size == np.unique(b).size)
+
+
 @pytest.fixture
 def affine_scene():
     return make_affine_scene
+
+
+@pytest.fixture
+def two_view_scene():
+    return make_two_view_scene
+
+
+@pytest.fixture(name='same_partition')
+def same_partition_fixture():
+    return same_partition
 
 
 @pytest.fixture

@@ -44,21 +44,9 @@ def test_an_outlier_earns_the_reward_of_a_pair_that_moves_apart_whatever_its_nei
     assert energy(apart, np.array([2, 1, 1])) == pytest.approx(-4.0)
 
 
-def _scene_with_mismatches(affine_scene, share: float, seed: int
-                           ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Two views of two rigid motions; ``share`` of the points get a second-view position drawn
-    anywhere in the image (a mismatch). Returns tracks, truth (mismatches -1) and the mask."""
-    tracks, truth = affine_scene(sizes=(120, 90), noise=0.3, seed=seed)
-    tracks = tracks[[0, -1]].copy()
-    rng = np.random.default_rng(seed)
-    bad = rng.random(truth.size) < share
-    low, high = tracks.reshape(-1, 2).min(axis=0), tracks.reshape(-1, 2).max(axis=0)
-    tracks[1, bad] = rng.uniform(low, high, (int(bad.sum()), 2))
-    return tracks, np.where(bad, OUTLIER, truth), bad
-
-
-def test_isolated_points_pay_the_uniform_outlier_cost_and_leave_the_pair_unit(affine_scene):
-    tracks, _, bad = _scene_with_mismatches(affine_scene, 0.4, seed=3)
+def test_isolated_points_pay_the_uniform_outlier_cost_and_leave_the_pair_unit(two_view_scene):
+    tracks, truth = two_view_scene(seed=3, mismatches=0.4)
+    bad = truth == OUTLIER
     config = PearlConfig(model='fundamental', solver=SolverSettings())
     setting = pearl._setting(tracks, config, np.random.default_rng(0))
     plain = pearl._setting(tracks, PearlConfig(model='fundamental',
@@ -88,14 +76,15 @@ def test_isolated_points_pay_the_uniform_outlier_cost_and_leave_the_pair_unit(af
 
 
 def test_isolation_and_outliers_apart_find_the_motions_among_40_percent_mismatches(
-        affine_scene):
+        two_view_scene):
     # Eight scenes: a two-view search at 40% mismatches ends in a wrong minimum on some
     # (one of eight at 37%), so the scenes' median is judged. Scored with the mismatches as a
     # group of their own, as AdelaideRMF is.
     without = SolverSettings(isolation=0.0, outlier_apart=False)
     errors, recalls = [], []
     for seed in range(8):
-        tracks, truth, bad = _scene_with_mismatches(affine_scene, 0.4, seed=seed)
+        tracks, truth = two_view_scene(seed=seed, mismatches=0.4)
+        bad = truth == OUTLIER
         found = pearl.fit(tracks, PearlConfig(model='fundamental'), rng=0)
         default = pearl.fit(tracks, PearlConfig(model='fundamental', solver=without), rng=0)
         errors.append(misclassification(found.labels, truth))
@@ -105,10 +94,10 @@ def test_isolation_and_outliers_apart_find_the_motions_among_40_percent_mismatch
     assert np.median(recalls) > 0.8
 
 
-def test_the_online_scale_given_the_graph_is_the_scale_fit_reads(affine_scene):
+def test_the_online_scale_given_the_graph_is_the_scale_fit_reads(two_view_scene):
     # The online segmenter estimates the scale with noise_scale and passes it on: given the
     # same neighbourhood, it must leave out the same isolated points fit does.
-    tracks, _, _ = _scene_with_mismatches(affine_scene, 0.4, seed=5)
+    tracks, _ = two_view_scene(seed=5, mismatches=0.4)
     config = PearlConfig(model='fundamental')
     graph = neighbourhood(tracks, settings=config.solver)
     setting = pearl._setting(tracks, config, np.random.default_rng(0), graph)

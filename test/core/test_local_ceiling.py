@@ -11,7 +11,6 @@ import pytest
 
 from pearl_ros.core import pearl
 from pearl_ros.core.config import PearlConfig, SolverSettings
-from pearl_ros.core.labels import OUTLIER
 from pearl_ros.core.metrics import misclassification
 from pearl_ros.datasets import adelaide, kt3dmoseg
 
@@ -19,20 +18,9 @@ CAPPED = PearlConfig(model='fundamental')
 FREE = PearlConfig(model='fundamental', solver=SolverSettings(local_ceiling=0.0))
 
 
-def _two_view_scene(affine_scene, seed: int) -> tuple[np.ndarray, np.ndarray]:
-    """Two views of two rigid motions, 30% of the points moved anywhere in the second view."""
-    tracks, truth = affine_scene(sizes=(120, 90), noise=0.3, seed=seed)
-    tracks = tracks[[0, -1]].copy()
-    rng = np.random.default_rng(seed)
-    bad = rng.random(truth.size) < 0.3
-    low, high = tracks.reshape(-1, 2).min(axis=0), tracks.reshape(-1, 2).max(axis=0)
-    tracks[1, bad] = rng.uniform(low, high, (int(bad.sum()), 2))
-    return tracks, np.where(bad, OUTLIER, truth)
-
-
 @pytest.mark.parametrize('seed', range(3))
-def test_every_model_of_a_two_view_fit_keeps_within_its_members_local_noise(affine_scene, seed):
-    tracks, _ = _two_view_scene(affine_scene, seed)
+def test_every_model_of_a_two_view_fit_keeps_within_its_members_local_noise(two_view_scene, seed):
+    tracks, _ = two_view_scene(seed)
     result = pearl.fit(tracks, CAPPED, rng=seed)
     setting = pearl._setting(tracks, CAPPED, np.random.default_rng(seed))
     assert setting.local is not None and setting.reference >= setting.scale

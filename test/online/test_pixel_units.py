@@ -11,11 +11,11 @@ from __future__ import annotations
 import numpy as np
 
 from pearl_ros.datasets.robot import robot_stream
+from pearl_ros.datasets.synthetic import FRAME_NS
 from pearl_ros.online.config import OnlineConfig
 from pearl_ros.online.segmenter import OnlineSegmenter
 
 ZOOM, SHIFT = 2.5, np.array([1500.0, -700.0])
-FRAME_NS = 33_333_333
 
 
 def test_a_stream_zoomed_and_moved_gets_the_same_motion_numbers():

@@ -26,12 +26,6 @@ WINDOW = OnlineConfig().window
 UNTIMED = OnlineConfig(budget_ms=0.0)
 
 
-def same_partition(a, b):
-    """Whether labellings ``a`` and ``b`` group the points alike, whatever their numbers."""
-    pairs = np.unique(np.stack([a, b]), axis=1).shape[1]
-    return pairs == np.unique(a).size == np.unique(b).size
-
-
 def run(frames, segmenter=None):
     segmenter = segmenter or OnlineSegmenter(online=UNTIMED)
     return segmenter, [segmenter.process(f.stamp_ns, f.ids, f.uv) for f in frames]
@@ -403,7 +397,8 @@ def test_a_budgeted_cold_start_draws_what_the_unbudgeted_one_draws(monkeypatch):
                    for n, r, _ in drawn[1:])
 
 
-def test_a_cold_start_in_slices_ends_with_the_labels_of_the_unbudgeted_one(monkeypatch):
+def test_a_cold_start_in_slices_ends_with_the_labels_of_the_unbudgeted_one(monkeypatch,
+                                                                             same_partition):
     # With no cap on the budgets it may take, the budgeted cold start (a cold fit of the
     # window of COLD_START_FRAMES frames, a millisecond's worth a frame) finds what the
     # unbudgeted segmenter's first fit finds: however its steps fall into frames, when it is
