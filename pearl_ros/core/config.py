@@ -171,6 +171,14 @@ class SolverSettings:
         True, 'over three frames or more, the points around isolated ones are also joined by '
         'the edges a Delaunay triangulation without the isolated points has, so that '
         'outlier tracks do not cut the ties between the points of a body')
+    joint_neighbours: float = spec(
+        0.1, 'batch two-frame fits: where at least this share of the points keeps fewer than '
+        'a third of its nearest image neighbours from one view to the other (mismatches), the '
+        "isolation test reads each point's misses over patches drawn from its nearest "
+        "neighbours in both views' coordinates together (x, y, x', y'): a mismatch lands "
+        'anywhere in the second view, so the points around it there are not its neighbours '
+        'in the first; 0 = never',
+        low=0.0, high=1.0)
     redraw_isolated: bool = spec(
         True, 'batch fits over three frames or more: once the isolated points are known, '
         "each point's patch is drawn again from its nearest image neighbours among the "

@@ -34,7 +34,12 @@ from pearl_ros.core.expansion import Expansions, expansion_move
 from pearl_ros.core.labels import OUTLIER
 from pearl_ros.core.models import MotionModel, get_model
 from pearl_ros.core.models.ego import WithStaticWorld, static_ties
-from pearl_ros.core.neighbourhood import Neighbourhood, nearest_neighbours, neighbourhood
+from pearl_ros.core.neighbourhood import (
+    Neighbourhood,
+    lost_neighbours,
+    nearest_neighbours,
+    neighbourhood,
+)
 from pearl_ros.core.proposals import mixed_samples, uniform_samples
 from pearl_ros.core.scale import local_scale
 
@@ -834,8 +839,12 @@ def _setting(tracks: np.ndarray, config: PearlConfig, rng: np.random.Generator,
                          f'model {config.model!r}, got {n}')
     # Neighbours are compared over every frame given, whatever the model family.
     if graph is None:
+        # Two views with mismatches: neighbours in both views' coordinates together.
+        joint = (batch and tracks.shape[0] == 2 and solver.joint_neighbours > 0
+                 and lost_neighbours(tracks, solver.image_neighbours)
+                 >= solver.joint_neighbours)
         graph = neighbourhood(tracks, settings=solver,
-                              core_patches=batch and solver.core_patches)
+                              core_patches=batch and solver.core_patches, joint=joint)
     else:
         graph.check(n)
     edges, neighbours = graph.edges, graph.neighbours
