@@ -48,7 +48,7 @@ def test_a_rigid_motion_keeps_every_neighbour_and_mismatches_lose_theirs(two_vie
     moved = np.stack([tracks[0], tracks[0] @ turn.T * 1.5 + [200.0, -80.0]])
     assert lost_neighbours(moved, 10) == 0.0
     bad, bad_truth = two_view_scene(seed=4, mismatches=0.4)
-    share = np.mean(bad_truth == -1)
+    share = np.mean(bad_truth == OUTLIER)
     assert lost_neighbours(bad, 10) >= 0.8 * share
 
 
@@ -58,15 +58,14 @@ def test_joint_patches_isolate_more_mismatches_and_no_more_inliers(two_view_scen
         for mismatches in (0.5, 0.7):
             tracks, truth = two_view_scene(seed=seed, mismatches=mismatches)
             bad = truth == OUTLIER
-            for joint in (False, True):
-                graph = neighbourhood(tracks, joint=joint)
+            graphs = {joint: neighbourhood(tracks, joint=joint) for joint in (False, True)}
+            for joint, graph in graphs.items():
                 suspect = pearl._suspects(graph.nearest_miss(), SolverSettings().isolation)
                 recall[joint].append(suspect[bad].mean())
                 wrong[joint].append(suspect[~bad].mean())
             # Only the isolation test's misses change: the pair term's stay those of the image.
-            plain, both = neighbourhood(tracks), neighbourhood(tracks, joint=True)
-            assert np.array_equal(plain.edges, both.edges)
-            assert np.array_equal(plain.misses, both.misses)
+            assert np.array_equal(graphs[False].edges, graphs[True].edges)
+            assert np.array_equal(graphs[False].misses, graphs[True].misses)
     assert np.mean(recall[True]) > np.mean(recall[False]) + 0.1
     assert np.mean(wrong[True]) <= np.mean(wrong[False]) + 0.02
 
