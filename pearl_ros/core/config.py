@@ -179,6 +179,13 @@ class SolverSettings:
         'anywhere in the second view, so the points around it there are not its neighbours '
         'in the first; 0 = never',
         low=0.0, high=1.0)
+    kept_fellows: float = spec(
+        0.25, 'where joint_neighbours applies: a model whose points keep less than this share '
+        'of their 5 nearest fellow points (of the same model) from one view to the other, '
+        'beyond what chance keeps ((s - c) / (1 - c), c = 5 / (M - 1) among M points), is no '
+        'rigid motion but a model of mismatches, which land anywhere in the second view: its '
+        'points become outliers at the end of each round; 0 = never',
+        low=0.0, high=1.0)
     redraw_isolated: bool = spec(
         True, 'batch fits over three frames or more: once the isolated points are known, '
         "each point's patch is drawn again from its nearest image neighbours among the "

@@ -213,13 +213,21 @@ def lost_neighbours(tracks: np.ndarray, k: int) -> float:
     point's neighbours (Hopkins155's and KT3DMoSeg's first and last frames: at most 3.4 and
     6.6% of the points lose them); a mismatch, which lands anywhere in the other view, loses
     them, and so does a point that mismatches surround (AdelaideRMF's pairs: 26-83%)."""
+    kept, k = kept_neighbours(tracks, k)
+    if k == 0:
+        return 0.0
+    return float(np.mean(3 * kept < k))
+
+
+def kept_neighbours(tracks: np.ndarray, k: int) -> tuple[np.ndarray, int]:
+    """How many of each point's ``k`` nearest image neighbours in the first frame of ``tracks``
+    (F, N, 2) are among its ``k`` nearest in the last, ``(N,)`` int; and the k used (at most
+    N - 1)."""
     tracks = np.asarray(tracks, dtype=np.float64)
     first = nearest_neighbours(tracks[0], k)
     last = nearest_neighbours(tracks[-1], k)
-    if first.shape[1] == 0:
-        return 0.0
     kept = (first[:, :, None] == last[:, None, :]).any(axis=1).sum(axis=1)
-    return float(np.mean(3 * kept < first.shape[1]))
+    return kept, first.shape[1]
 
 
 def delaunay_edges(points: np.ndarray) -> np.ndarray:

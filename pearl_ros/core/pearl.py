@@ -36,6 +36,7 @@ from pearl_ros.core.models import MotionModel, get_model
 from pearl_ros.core.models.ego import WithStaticWorld, static_ties
 from pearl_ros.core.neighbourhood import (
     Neighbourhood,
+    kept_neighbours,
     lost_neighbours,
     nearest_neighbours,
     neighbourhood,
@@ -61,6 +62,11 @@ CORE_QUANTILE = 0.1
 # Minimal samples fitted, measured and offered to the search at a time (a step of a
 # SlicedFit): at 2000 points 200 samples in one batch took 80 ms.
 PROPOSE_CHUNK = 64
+# The nearest fellow points (of the same model) whose keeping from one view to the other tells
+# a rigid motion from a model of mismatches (SolverSettings.kept_fellows): by chance a point
+# keeps FELLOWS / (M - 1) of them among M. Five, not the patches' ten, so that small models
+# can keep more than chance: among 14 points ten neighbours are most of them.
+FELLOWS = 5
 
 # A model refitted by _refit_one: params, noise level (px), residual row (px), data cost row.
 _Refit = tuple[np.ndarray, float, np.ndarray, np.ndarray]
@@ -233,6 +239,9 @@ class _Setting:
     local: np.ndarray | None = None
     reference: float = 0.0
     batch: bool = True  # fit(..., batch=): False for the online segmenter's fits
+    # Two views with mismatches (SolverSettings.joint_neighbours): their points (2, N, 2), on
+    # which a model's points must keep their fellows (SolverSettings.kept_fellows).
+    views: np.ndarray | None = None
 
     def cap(self, members: np.ndarray) -> float:
         """The most noise level a model of ``members`` may claim, px."""
@@ -621,7 +630,8 @@ def _steps(tracks: np.ndarray, config: PearlConfig, rng: np.random.Generator,
         history += energies
         iterations += len(energies)
         # Segments of one motion that no expansion joins are merged once the round settles.
-        if (yield from _timed_steps(timings, 'refit', _merge(search, deadline))):
+        merged = yield from _timed_steps(timings, 'refit', _merge(search, deadline))
+        if merged + _drop_scattered(search):
             history.append(search.energy())
         search.compress()  # only the models in use go on (into the next round, the result)
     if settle:
@@ -845,8 +855,10 @@ def _setting(tracks: np.ndarray, config: PearlConfig, rng: np.random.Generator,
                  >= solver.joint_neighbours)
         graph = neighbourhood(tracks, settings=solver,
                               core_patches=batch and solver.core_patches, joint=joint)
+        views = tracks if joint and solver.kept_fellows > 0 else None
     else:
         graph.check(n)
+        views = None
     edges, neighbours = graph.edges, graph.neighbours
     nearest = graph.nearest_miss()
     suspect = _suspects(nearest, solver.isolation, also)
@@ -907,7 +919,7 @@ def _setting(tracks: np.ndarray, config: PearlConfig, rng: np.random.Generator,
         neighbours=neighbours, scale=scale, floor=floor, ceiling=ceiling, dof=dof,
         outlier_cost=costs,
         label_cost=config.label_cost * model.label_cost_weight(data),
-        local=local, reference=reference, batch=batch)
+        local=local, reference=reference, batch=batch, views=views)
 
 
 def noise_scale(tracks: np.ndarray, config: PearlConfig | None = None,
@@ -1204,6 +1216,42 @@ def _merge(search: _Search, deadline: float | None = None) -> Generator[None, No
         search.adopt(keep, fitted, np.flatnonzero(search.labels == keep))
         merges += 1
     return merges
+
+
+def _drop_scattered(search: _Search) -> int:
+    """Free the points of the models that do not keep their points' fellows; returns how
+    many models were dropped.
+
+    A rigid motion keeps the image neighbours of its points from one view to the other; a
+    mismatch lands anywhere in the second view. Where the views hold many mismatches
+    (``_Setting.views``), a model with a wide enough noise level holds a set of them at a data
+    cost below the outlier label's (AdelaideRMF's ``game``: 54 mismatches at 29 px, beside its
+    structure at 2.8 px). Of its points' :data:`FELLOWS` nearest fellow points (of the same
+    model) in the first view, a share ``s`` is among their nearest in the second, where
+    chance alone keeps ``c = FELLOWS / (M - 1)`` among M points; ``(s - c) / (1 - c)`` is
+    the share kept beyond chance: 0.08-0.14 for the models of mismatches of AdelaideRMF's
+    pairs, 0.55 or more for their structures and 0.35 or more for clouds of points seen
+    through (synthetic bodies turned by 38 degrees). A model that keeps less than
+    ``SolverSettings.kept_fellows`` beyond chance is no motion: its points become outliers (a
+    test of the hypothesis, as the interchangeable merge is, not a move of the energy; the
+    next round offers its points to the other models). A model of FELLOWS + 1 points or fewer
+    is not tested: every point is every other's neighbour.
+    """
+    views = search.setting.views
+    if views is None:
+        return 0
+    least = search.setting.solver.kept_fellows
+    dropped = 0
+    for label in np.unique(search.labels[search.labels != OUTLIER_ROW]).tolist():
+        members = np.flatnonzero(search.labels == label)
+        if members.size <= FELLOWS + 1:
+            continue
+        kept, k = kept_neighbours(views[:, members], FELLOWS)
+        chance = k / (members.size - 1)
+        if (float(np.mean(kept)) / k - chance) / (1.0 - chance) < least:
+            search.labels[members] = OUTLIER_ROW
+            dropped += 1
+    return dropped
 
 
 def _merge_interchangeable(search: _Search) -> Generator[None, None, int]:
