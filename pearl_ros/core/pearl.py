@@ -1249,7 +1249,7 @@ def _drop_scattered(search: _Search) -> int:
         kept, k = kept_neighbours(views[:, members], FELLOWS)
         chance = k / (members.size - 1)
         if (float(np.mean(kept)) / k - chance) / (1.0 - chance) < least:
-            search.labels[members] = OUTLIER_ROW
+            search.labels = np.where(search.labels == label, OUTLIER_ROW, search.labels)
             dropped += 1
     return dropped
 
