@@ -167,6 +167,20 @@ def same_partition(a: np.ndarray, b: np.ndarray) -> bool:
     return bool(pairs == np.unique(a).size == np.unique(b).size)
 
 
+def kept_by_sets(tracks: np.ndarray, k: int) -> np.ndarray:
+    """By brute force, how many of each point's k nearest others in the first frame of
+    ``tracks`` (F, N, 2) are among its k nearest in the last: sets of sorted distances, (N,)."""
+    kept = np.zeros(tracks.shape[1], dtype=np.int64)
+    for p in range(tracks.shape[1]):
+        near = []
+        for view in (tracks[0], tracks[-1]):
+            d = np.linalg.norm(view - view[p], axis=1)
+            d[p] = np.inf
+            near.append(set(np.argsort(d, kind='stable')[:k].tolist()))
+        kept[p] = len(near[0] & near[1])
+    return kept
+
+
 @pytest.fixture
 def affine_scene():
     return make_affine_scene
@@ -180,6 +194,11 @@ def two_view_scene():
 @pytest.fixture(name='same_partition')
 def same_partition_fixture():
     return same_partition
+
+
+@pytest.fixture(name='kept_by_sets')
+def kept_by_sets_fixture():
+    return kept_by_sets
 
 
 @pytest.fixture

@@ -26,20 +26,12 @@ OFF = PearlConfig(model='fundamental', solver=SolverSettings(kept_fellows=0.0))
 MISMATCHES = 2  # the segment the mismatches of a scene are given in these tests
 
 
-def _beyond_chance(views: np.ndarray, k: int) -> float:
+def _beyond_chance(kept: np.ndarray, k: int) -> float:
     """The share of each point's k nearest others kept from the first view to the second,
-    beyond chance, by brute force: sets of sorted distances, chance k / (M - 1)."""
-    m = views.shape[1]
-    kept = 0
-    for p in range(m):
-        near = []
-        for view in views:
-            d = np.linalg.norm(view - view[p], axis=1)
-            d[p] = np.inf
-            near.append(set(np.argsort(d, kind='stable')[:k].tolist()))
-        kept += len(near[0] & near[1])
+    beyond chance k / (M - 1), from ``kept`` (M,), the brute-force counts (``kept_by_sets``)."""
+    m = kept.size
     chance = k / (m - 1)
-    return (kept / (m * k) - chance) / (1.0 - chance)
+    return (kept.sum() / (m * k) - chance) / (1.0 - chance)
 
 
 def _search(tracks: np.ndarray, segments: np.ndarray, config: PearlConfig = CONFIG):
@@ -72,17 +64,21 @@ def _opaque_bodies(seed: int, mismatches: float) -> tuple[np.ndarray, np.ndarray
 
 
 @pytest.mark.parametrize('seed', [0, 1])
-def test_kept_neighbours_counts_what_a_brute_force_count_finds(two_view_scene, seed):
+def test_kept_neighbours_counts_what_a_brute_force_count_finds(two_view_scene, kept_by_sets,
+                                                               seed):
     tracks, _ = two_view_scene(seed=seed, mismatches=0.4)
     kept, k = kept_neighbours(tracks, 5)
     assert k == 5
-    beyond = _beyond_chance(tracks, 5)
+    brute = kept_by_sets(tracks, 5)
+    assert np.array_equal(kept, brute)
+    beyond = _beyond_chance(brute, 5)
     chance = 5 / (tracks.shape[1] - 1)
     assert (kept.mean() / 5 - chance) / (1 - chance) == pytest.approx(beyond)
 
 
 @pytest.mark.parametrize('scene', ['opaque', 'seen through'])
-def test_a_segment_of_mismatches_is_freed_and_the_bodies_kept(two_view_scene, scene):
+def test_a_segment_of_mismatches_is_freed_and_the_bodies_kept(two_view_scene, kept_by_sets,
+                                                              scene):
     # The bodies: planar ones, and clouds of points seen through (make_affine_scene's, turned
     # by 38 degrees between the views, which scramble many image neighbours).
     tracks, truth = (_opaque_bodies(3, 0.4) if scene == 'opaque'
@@ -93,7 +89,8 @@ def test_a_segment_of_mismatches_is_freed_and_the_bodies_kept(two_view_scene, sc
     before = search.labels.copy()
     assert np.unique(before[before != pearl.OUTLIER_ROW]).size == 3
     # The oracle: each segment's share kept beyond chance, by brute force.
-    beyond = {label: _beyond_chance(tracks[:, segments == label], pearl.FELLOWS)
+    beyond = {label: _beyond_chance(kept_by_sets(tracks[:, segments == label], pearl.FELLOWS),
+                                    pearl.FELLOWS)
               for label in range(3)}
     assert beyond[MISMATCHES] < SolverSettings().kept_fellows < min(beyond[0], beyond[1])
     assert pearl._drop_scattered(search) == 1
