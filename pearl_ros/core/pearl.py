@@ -67,6 +67,10 @@ PROPOSE_CHUNK = 64
 # keeps FELLOWS / (M - 1) of them among M. Five, not the patches' ten, so that small models
 # can keep more than chance: among 14 points ten neighbours are most of them.
 FELLOWS = 5
+# Refits a setting keeps (_Setting.refits) before it forgets them all, each two rows of N
+# floats: a batch two-view search of AdelaideRMF's pairs computes 21 distinct ones at the
+# median and at most 60 (a third of those it asks for), Hopkins155's searches under 30.
+REFITS_KEPT = 256
 
 # A model refitted by _refit_one: params, noise level (px), residual row (px), data cost row.
 _Refit = tuple[np.ndarray, float, np.ndarray, np.ndarray]
@@ -242,6 +246,10 @@ class _Setting:
     # Two views with mismatches (SolverSettings.joint_neighbours): their points (2, N, 2), on
     # which a model's points must keep their fellows (SolverSettings.kept_fellows).
     views: np.ndarray | None = None
+    # Every refit of this setting, by its members and start (_refit_one): a search tries the
+    # same refit again and again (a merge candidate round after round, a split's losers).
+    refits: dict[tuple[bytes, bytes], _Refit | None] = field(
+        default_factory=dict, repr=False, compare=False)
 
     def cap(self, members: np.ndarray) -> float:
         """The most noise level a model of ``members`` may claim, px."""
@@ -1078,7 +1086,23 @@ def _param_shape(model: MotionModel, data: np.ndarray) -> tuple[int, ...]:
 
 def _refit_one(setting: _Setting, members: np.ndarray, start: np.ndarray) -> _Refit | None:
     """A model re-estimated from ``members``: params, noise level, residual row and data cost
-    row; None when the members are too few or degenerate."""
+    row (read-only); None when the members are too few or degenerate. A refit depends on
+    nothing else, and is computed once per setting (:attr:`_Setting.refits`)."""
+    key = (np.asarray(members, dtype=np.int64).tobytes(),
+           np.asarray(start, dtype=np.float64).tobytes())
+    if key in setting.refits:
+        return setting.refits[key]
+    fitted = _computed_refit(setting, members, start)
+    if len(setting.refits) >= REFITS_KEPT:
+        setting.refits.clear()
+    if REFITS_KEPT:
+        setting.refits[key] = fitted
+    return fitted
+
+
+def _computed_refit(setting: _Setting, members: np.ndarray, start: np.ndarray
+                    ) -> _Refit | None:
+    """:func:`_refit_one`, computed."""
     model = setting.model
     new = model.refit(setting.data, members, start)
     if new is None:
@@ -1089,6 +1113,8 @@ def _refit_one(setting: _Setting, members: np.ndarray, start: np.ndarray) -> _Re
     if sigma is None:
         return None
     row = data_costs(residuals, np.array([sigma]), setting.dof, setting.floor)[0]
+    for array in (new, residuals, row):
+        array.setflags(write=False)
     return new, sigma, residuals[0], row
 
 
