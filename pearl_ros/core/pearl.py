@@ -246,6 +246,9 @@ class _Setting:
     # Two views with mismatches (SolverSettings.joint_neighbours): their points (2, N, 2), on
     # which a model's points must keep their fellows (SolverSettings.kept_fellows).
     views: np.ndarray | None = None
+    # The neighbourhood as the setting was given or drew it (before any redraw): it depends on
+    # the tracks and settings alone, and a batch fit's later restarts take it as given.
+    drawn: Neighbourhood | None = field(default=None, repr=False, compare=False)
     # Every refit of this setting, by its members and start (_refit_one): a search tries the
     # same refit again and again (a merge candidate round after round, a split's losers).
     refits: dict[tuple[bytes, bytes], _Refit | None] = field(
@@ -443,7 +446,9 @@ def fit(
         re-estimated (a cheap warm step between proposal batches). Ignored without ``init``.
     graph : Neighbourhood, optional
         The neighbour systems of ``tracks`` (:func:`pearl_ros.core.neighbourhood.neighbourhood`),
-        when the caller already has them; built from ``tracks`` otherwise.
+        when the caller already has them; built from ``tracks`` otherwise (once for all of a
+        batch fit's restarts). One drawn with ``joint`` makes a batch two-view fit test its
+        models' fellows (``SolverSettings.kept_fellows``), as one the fit draws jointly does.
     suspects : (N,) bool, optional
         Points the caller suspects isolated, besides those the isolation test finds
         (``SolverSettings.isolation``; the online segmenter judges tracks over their past
@@ -498,6 +503,8 @@ def fit(
         search, result = _run_search(_steps(tracks, config, generator, init, deadline,
                                             init_cost, propose, graph, suspects,
                                             init_label_share, cameras, batch, settle=False))
+        assert search is not None  # _steps yields its search first
+        graph = search.setting.drawn  # the same for every restart: drawn once
         for step, seconds in result.timings.items():
             spent[step] = spent.get(step, 0.0) + seconds
         if best is None or result.energy < best[1].energy:
@@ -863,10 +870,13 @@ def _setting(tracks: np.ndarray, config: PearlConfig, rng: np.random.Generator,
                  >= solver.joint_neighbours)
         graph = neighbourhood(tracks, settings=solver,
                               core_patches=batch and solver.core_patches, joint=joint)
-        views = tracks if joint and solver.kept_fellows > 0 else None
     else:
         graph.check(n)
-        views = None
+    drawn = graph
+    # A batch two-view neighbourhood drawn jointly (its isolation misses apart) is that of two
+    # views with mismatches, whose models must keep their fellows.
+    views = (tracks if batch and tracks.shape[0] == 2 and graph.isolation_misses is not None
+             and solver.kept_fellows > 0 else None)
     edges, neighbours = graph.edges, graph.neighbours
     nearest = graph.nearest_miss()
     suspect = _suspects(nearest, solver.isolation, also)
@@ -927,7 +937,7 @@ def _setting(tracks: np.ndarray, config: PearlConfig, rng: np.random.Generator,
         neighbours=neighbours, scale=scale, floor=floor, ceiling=ceiling, dof=dof,
         outlier_cost=costs,
         label_cost=config.label_cost * model.label_cost_weight(data),
-        local=local, reference=reference, batch=batch, views=views)
+        local=local, reference=reference, batch=batch, views=views, drawn=drawn)
 
 
 def noise_scale(tracks: np.ndarray, config: PearlConfig | None = None,

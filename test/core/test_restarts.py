@@ -44,6 +44,34 @@ def test_a_two_view_fit_keeps_the_least_energy_of_its_independent_fits(affine_sc
     assert kept.labels.tolist() == best.labels.tolist()
 
 
+@pytest.mark.parametrize('seed', range(2))
+def test_restarts_with_mismatches_keep_the_least_energy_of_their_independent_fits(
+        two_view_scene, seed):
+    # With 40% mismatches the neighbourhood is drawn in both views' coordinates and models
+    # must keep their fellows (SolverSettings.joint_neighbours, kept_fellows); the restarts
+    # draw it once and share it, each single fit draws its own.
+    tracks, _ = two_view_scene(seed, mismatches=0.4)
+    generator = np.random.default_rng(seed)
+    singles = [pearl.fit(tracks, _config(1), generator) for _ in range(3)]
+    best = _least(singles)
+    kept = pearl.fit(tracks, _config(3), seed)
+    assert kept.energy == best.energy
+    assert kept.labels.tolist() == best.labels.tolist()
+
+
+def test_a_restart_given_the_drawn_neighbourhood_sets_up_as_the_first_fit(two_view_scene):
+    # The restarts take the first fit's neighbourhood as given: the same ties, and with
+    # mismatches the same test of the models' fellows, as a setting that draws its own.
+    tracks, _ = two_view_scene(3, mismatches=0.4)
+    config = _config(3)
+    first = pearl._setting(tracks, config, np.random.default_rng(0))
+    again = pearl._setting(tracks, config, np.random.default_rng(0), graph=first.drawn)
+    assert first.views is not None and again.views is not None
+    assert np.array_equal(first.edges, again.edges)
+    assert np.array_equal(first.weights, again.weights)
+    assert np.array_equal(first.outlier_cost, again.outlier_cost)
+
+
 def _widened_one(result: pearl.PearlResult) -> bool:
     # One motion whose noise level is past the widest level a fresh proposal is offered at.
     widest = max(SolverSettings().proposal_levels)
