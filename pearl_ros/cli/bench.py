@@ -426,12 +426,16 @@ def _build_parser() -> argparse.ArgumentParser:
     hop.add_argument('--outliers', type=float, default=None, metavar='SHARE',
                      help='add random-walk outlier tracks making up SHARE of all tracks (3 px '
                      'steps); true points scored on their own, outliers by recall')
+    hop.add_argument('--mismatches', type=float, default=None, metavar='SHARE',
+                     help='with --frames two: add gross mismatches (random point pairs) making '
+                     'up SHARE of all points; scored with them as a group of their own, as '
+                     'AdelaideRMF is')
     hop.add_argument('--every', type=int, default=1, metavar='N',
                      help='every Nth sequence only (with --outliers the robot-data benchmark '
                      'uses 5)')
     hop.add_argument('--items', action='store_true',
-                     help='with --outliers: also print one line per sequence (without it, '
-                     '--csv writes them)')
+                     help='with --outliers or --mismatches: also print one line per sequence '
+                     '(without them, --csv writes them)')
     hop.add_argument(
         '--set',
         action='append',
@@ -619,17 +623,26 @@ def _hopkins155(args: argparse.Namespace) -> int:
         raise InputError(f'--jobs must be >= 1, got {args.jobs}')
     if args.outliers is not None and not 0.0 <= args.outliers < 1.0:
         raise InputError(f'--outliers must be in [0, 1), got {args.outliers}')
-    if args.outliers is not None:
-        # The outlier benchmark runs the all-frames fit and scores through the data sets'
-        # tasks: options it would not honour are refused rather than ignored.
-        given = [flag for flag, used in (('--csv', args.csv), ('--oracle', args.oracle),
-                                         ('--frames two', args.frames == 'two')) if used]
+    if args.mismatches is not None and not 0.0 <= args.mismatches < 1.0:
+        raise InputError(f'--mismatches must be in [0, 1), got {args.mismatches}')
+    if args.outliers is not None and args.mismatches is not None:
+        raise InputError('--outliers (tracks over all frames) and --mismatches (two frames) '
+                         'are two benchmarks: give one')
+    if args.mismatches is not None and args.frames != 'two':
+        raise InputError('--mismatches goes with --frames two')
+    if args.outliers is not None or args.mismatches is not None:
+        # These benchmarks score through the data sets' tasks: options they would not honour
+        # are refused rather than ignored.
+        flag = '--outliers' if args.outliers is not None else '--mismatches'
+        given = [name for name, used in (('--csv', args.csv), ('--oracle', args.oracle),
+                                         ('--frames two', args.outliers is not None
+                                          and args.frames == 'two')) if used]
         if given:
-            raise InputError(f'--outliers runs all frames and prints per sequence with '
-                             f'--items; it does not take {", ".join(given)}')
+            raise InputError(f'{flag} prints per sequence with --items; it does not take '
+                             f'{", ".join(given)}')
     elif args.items:
-        raise InputError('--items goes with --outliers (without it, --csv writes one row per '
-                         'sequence)')
+        raise InputError('--items goes with --outliers or --mismatches (without them, --csv '
+                         'writes one row per sequence)')
     from pearl_ros.online.config import OnlineConfig
     from pearl_ros.pipeline import settings
 
@@ -653,7 +666,7 @@ def _hopkins155(args: argparse.Namespace) -> int:
     names = names[::args.every]
     if not names:
         raise InputError(f'no Hopkins155 sequences (*/*_truth.mat) in {root}')
-    if args.outliers is not None:
+    if args.outliers is not None or args.mismatches is not None:
         from pearl_ros.cli.bench_sets import hopkins_outliers
 
         return hopkins_outliers(args, root, names)

@@ -50,3 +50,43 @@ def add_outlier_tracks(
     walks = start[None] + np.concatenate([np.zeros((1, count, 2)), np.cumsum(steps, axis=0)])
     return (np.concatenate([tracks, walks], axis=1),
             np.concatenate([labels, np.full(count, OUTLIER, dtype=np.int64)]))
+
+
+def add_mismatches(
+    tracks: np.ndarray,
+    labels: np.ndarray,
+    share: float,
+    rng: np.random.Generator | int | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Append gross mismatches to two views so that they make up ``share`` of all points.
+
+    A mismatch is what a descriptor matcher adds between wide-baseline views (AdelaideRMF's
+    pairs hold 27-73% of them): a point anywhere in the first view's bounding box of the clean
+    points, matched to a point anywhere in the second view's, the two drawn independently, so
+    that no motion relates them.
+
+    Parameters
+    ----------
+    tracks : (2, N, 2) float64, pixels: the two views
+    labels : (N,) int, true motion of each point
+    share : float in [0, 1), mismatches / all points afterwards
+    rng : numpy Generator, seed or None
+
+    Returns
+    -------
+    tracks : (2, N + M, 2) float64, the clean points first
+    labels : (N + M,) int64, ``OUTLIER`` (-1) for the M added mismatches
+    """
+    tracks = np.asarray(tracks, dtype=np.float64)
+    labels = np.asarray(labels, dtype=np.int64)
+    if tracks.shape[0] != 2 or tracks.ndim != 3 or tracks.shape[2] != 2 \
+            or labels.shape != (tracks.shape[1],):
+        raise InputError(f'tracks must be (2, N, 2) with N labels, got {tracks.shape} and '
+                         f'{labels.shape}')
+    if not 0.0 <= share < 1.0:
+        raise InputError(f'share must be in [0, 1), got {share!r}')
+    rng = np.random.default_rng(rng)
+    count = int(round(share * tracks.shape[1] / (1.0 - share)))
+    views = [rng.uniform(view.min(axis=0), view.max(axis=0), (count, 2)) for view in tracks]
+    return (np.concatenate([tracks, np.stack(views)], axis=1),
+            np.concatenate([labels, np.full(count, OUTLIER, dtype=np.int64)]))

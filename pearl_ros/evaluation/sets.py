@@ -200,13 +200,23 @@ def _kt3dmoseg(task: Task) -> Score:
 
 def _hopkins_outliers(task: Task) -> Score:
     """A Hopkins155 sequence with random-walk outlier tracks added (``task.outliers`` of all
-    tracks); true points scored on their own, outliers by recall."""
+    tracks; mode ``all``), true points scored on their own and outliers by recall; or its first
+    and last frames with gross mismatches added (mode ``two``: ``task.outliers`` of all
+    points, a fundamental matrix fit), scored with the mismatches as a group of their own, as
+    AdelaideRMF's pairs are."""
+    import dataclasses
+
     from pearl_ros.datasets.hopkins import load_mat
-    from pearl_ros.datasets.outliers import add_outlier_tracks
+    from pearl_ros.datasets.outliers import add_mismatches, add_outlier_tracks
 
     seq = load_mat(task.source)
-    # The outlier tracks depend on the sequence and --seed only, never on the worker.
+    # The outliers depend on the sequence and --seed only, never on the worker.
     rng = np.random.default_rng(np.random.SeedSequence([task.seed, zlib.crc32(seq.name.encode())]))
+    if task.mode == 'two':
+        tracks, truth = add_mismatches(seq.tracks[[0, -1]], seq.labels, task.outliers, rng)
+        labels, found, seconds = _fit(tracks, dataclasses.replace(task.config,
+                                                                  model='fundamental'), task.seed)
+        return score('hopkins155_mismatches', seq.name, labels, truth, seconds, found)
     tracks, truth = add_outlier_tracks(seq.tracks, seq.labels, task.outliers, rng)
     labels, found, seconds = _fit(tracks, task.config, task.seed)
     return score('hopkins155_outliers', seq.name, labels, truth, seconds, found,

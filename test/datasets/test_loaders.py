@@ -11,7 +11,7 @@ import scipy.io
 
 from pearl_ros.core.errors import InputError
 from pearl_ros.datasets import adelaide, kt3dmoseg
-from pearl_ros.datasets.outliers import add_outlier_tracks
+from pearl_ros.datasets.outliers import add_mismatches, add_outlier_tracks
 
 
 def _write_clip(path: Path, points: np.ndarray, visible: np.ndarray, groups: np.ndarray) -> None:
@@ -82,6 +82,31 @@ def test_outlier_tracks_make_up_the_share_asked_and_move_as_random_walks() -> No
     assert abs(steps.mean()) < 0.3
     with pytest.raises(InputError, match='share'):
         add_outlier_tracks(tracks, labels, 1.0)
+
+
+def test_mismatches_are_random_pairs_added_after_the_clean_points() -> None:
+    rng = np.random.default_rng(2)
+    first = rng.uniform([10, 20], [610, 420], (120, 2))
+    views = np.stack([first, 1.2 * first + [300.0, -50.0]])  # the second view zoomed and moved
+    labels = rng.integers(0, 3, 120)
+    out, out_labels = add_mismatches(views, labels, 0.6, rng=5)
+    np.testing.assert_array_equal(out[:, :120], views)
+    np.testing.assert_array_equal(out_labels[:120], labels)
+    assert out.shape == (2, 300, 2) and np.all(out_labels[120:] == -1)  # 180 of 300
+    for view, added in zip(views, out[:, 120:], strict=True):
+        # Each view's mismatches fill that view's box of clean points, uniformly.
+        low, high = view.min(axis=0), view.max(axis=0)
+        assert np.all((added >= low) & (added <= high))
+        assert np.all(np.abs(added.mean(axis=0) - (low + high) / 2) < 0.1 * (high - low))
+    # The two ends of a mismatch are drawn apart: no motion relates them.
+    moved = out[1, 120:] - (1.2 * out[0, 120:] + [300.0, -50.0])
+    assert np.median(np.linalg.norm(moved, axis=1)) > 100.0
+    assert np.array_equal(add_mismatches(views, labels, 0.6, rng=5)[0], out)
+    assert add_mismatches(views, labels, 0.0)[0].shape == (2, 120, 2)
+    with pytest.raises(InputError, match='share'):
+        add_mismatches(views, labels, 1.0)
+    with pytest.raises(InputError, match=r'\(2, N, 2\)'):
+        add_mismatches(np.concatenate([views, views]), labels, 0.5)
 
 
 def test_every_kt3dmoseg_clip_reads_with_a_background_and_moving_objects(

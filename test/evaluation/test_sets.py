@@ -181,13 +181,47 @@ def test_pearl_bench_hopkins_with_outliers_reports_recall(
     assert len(rows) == 2 and rows[0].split()[1] == '1R2RC_x'  # the sequence, then the summary
 
 
+def test_pearl_bench_hopkins_with_mismatches_scores_them_as_a_group(
+        hopkins_like, capsys: pytest.CaptureFixture[str]) -> None:
+    # Oracle: the task's own two views and truth, scored here by the misclassification with
+    # the mismatches as a group of their own (a point labelled -1 is right only where added).
+    import zlib
+
+    from pearl_ros.core.metrics import misclassification
+    from pearl_ros.core.pearl import fit
+    from pearl_ros.datasets.hopkins import load_mat
+    from pearl_ros.datasets.outliers import add_mismatches
+
+    path = hopkins_like('1R2RC_x', sizes=(60, 50), frames=8)
+    assert main(['hopkins155', str(path.parents[1]), '--frames', 'two', '--mismatches', '0.4',
+                 '--items', '--seed', '2']) == 0
+    rows = [x for x in capsys.readouterr().out.splitlines()
+            if x.startswith('hopkins155_mismatches')]
+    assert len(rows) == 2 and rows[0].split()[1] == '1R2RC_x'
+    seq = load_mat(path)
+    rng = np.random.default_rng(np.random.SeedSequence([2, zlib.crc32(seq.name.encode())]))
+    views, truth = add_mismatches(seq.tracks[[0, -1]], seq.labels, 0.4, rng)
+    assert np.count_nonzero(truth == -1) == round(0.4 * 110 / 0.6)
+    labels = fit(views, PearlConfig(model='fundamental'), np.random.default_rng(2)).labels
+    expected = 100.0 * misclassification(labels, truth)
+    assert rows[0].split()[2] == f'{expected:.2f}%'
+    assert float(rows[-1].split()[5]) > 50.0  # most mismatches labelled -1
+
+
 @pytest.mark.parametrize('argv, message', [
     (['suite', '--data', '/nonexistent/data'], 'data folder not found'),
+    (['hopkins155', '.', '--mismatches', '0.4'], '--mismatches goes with --frames two'),
+    (['hopkins155', '.', '--frames', 'two', '--mismatches', '-0.1'],
+     '--mismatches must be in [0, 1)'),
+    (['hopkins155', '.', '--frames', 'two', '--mismatches', '0.4', '--outliers', '0.2'],
+     'give one'),
+    (['hopkins155', '.', '--frames', 'two', '--mismatches', '0.4', '--csv', 'x.csv'],
+     '--mismatches prints per sequence with --items; it does not take --csv'),
     (['hopkins155', '.', '--outliers', '1.5'], '--outliers must be in [0, 1)'),
     (['hopkins155', '.', '--outliers', '0.2', '--csv', 'x.csv'], 'does not take --csv'),
     (['hopkins155', '.', '--outliers', '0.2', '--oracle', '--frames', 'two'],
      'does not take --oracle, --frames two'),
-    (['hopkins155', '.', '--items'], '--items goes with --outliers'),
+    (['hopkins155', '.', '--items'], '--items goes with --outliers or --mismatches'),
     (['synthetic', '--scenes', '-1'], '--scenes must be >= 0'),
     (['adelaide', '/nonexistent/pairs'], 'AdelaideRMF folder not found'),
     (['kt3dmoseg', '/nonexistent/clips', '--frames', 'two'], 'KT3DMoSeg folder not found'),
@@ -249,6 +283,26 @@ def test_the_suite_scores_robot_scenes_beyond_the_first_three_on_their_own_line(
                       'robot_synthetic_3_20': list(range(3, 21))}
     held_out = next(t for k, t in items if k == 'set' and t.source == '3')
     assert held_out.mode == 'stream'  # no cameras
+
+
+def test_the_suite_adds_mismatches_to_the_two_frames_of_every_fifth_hopkins_sequence(
+        tmp_path: Path) -> None:
+    import argparse
+
+    from pearl_ros.cli.bench_sets import _dataset_of, _suite_items
+
+    _empty_suite_files(tmp_path)
+    for name in ('seqb', 'seqc', 'seqd', 'seqe', 'seqf', 'seqg'):
+        (tmp_path / 'hopkins155' / name).mkdir()
+        (tmp_path / 'hopkins155' / name / f'{name}_truth.mat').touch()
+    items = _suite_items(tmp_path, argparse.Namespace(seed=0, set=[]))
+    two = [t for item in items if _dataset_of(item) == 'hopkins155_mismatches'
+           for t in [item[1]]]
+    # Seven sequences seqa..seqg: the first and the sixth, as the outlier-track row takes them.
+    assert [Path(t.source).parent.name for t in two] == ['seqa', 'seqf']
+    assert all(t.mode == 'two' and t.outliers == 0.5 for t in two)
+    walks = [item[1] for item in items if _dataset_of(item) == 'hopkins155_outliers']
+    assert [Path(t.source).parent.name for t in walks] == ['seqa', 'seqf']
 
 
 def test_a_robot_stream_scored_for_another_line_carries_its_name() -> None:
