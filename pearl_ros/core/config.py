@@ -168,9 +168,10 @@ class SolverSettings:
         'wandering outlier track, where a true one is as smooth as its body; 0 = as '
         'persist_deviations', low=0.0, high=1e6)
     bridge_isolated: bool = spec(
-        True, 'over three frames or more, the points around isolated ones are also joined by '
-        'the edges a Delaunay triangulation without the isolated points has, so that '
-        'outlier tracks do not cut the ties between the points of a body')
+        True, 'over three frames or more, and over two views with mismatches (where '
+        'joint_neighbours applies), the points around isolated ones are also joined by the '
+        'edges a Delaunay triangulation without the isolated points has, so that outlier '
+        'tracks and mismatches do not cut the ties between the points of a body')
     joint_neighbours: float = spec(
         0.1, 'batch two-frame fits: where at least this share of the points keeps fewer than '
         'a third of its nearest image neighbours from one view to the other (mismatches), the '

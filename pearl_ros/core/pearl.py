@@ -50,7 +50,9 @@ OUTLIER_ROW = 0  # the row of the cost table (the optimiser's label) of the outl
 # Fewest frames whose isolated points are bridged (SolverSettings.bridge_isolated). Over two
 # frames a local subspace is one constraint in R^4: the points of a sparse moving body are
 # often isolated there, and bridges drawn across them tie the bodies around it together
-# (Hopkins155 two frames 5.94 -> 6.42%, docs/experiments.md).
+# (Hopkins155 two frames 5.94 -> 6.42%, docs/experiments.md). Two views with mismatches
+# (SolverSettings.joint_neighbours) are bridged: their isolation test reads patches drawn on
+# both views' coordinates, where the mismatches stand apart.
 BRIDGE_FRAMES = 3
 # Model families between two views, which SolverSettings.local_ceiling caps.
 TWO_VIEW = ('fundamental', 'homography')
@@ -874,9 +876,10 @@ def _setting(tracks: np.ndarray, config: PearlConfig, rng: np.random.Generator,
         graph.check(n)
     drawn = graph
     # A batch two-view neighbourhood drawn jointly (its isolation misses apart) is that of two
-    # views with mismatches, whose models must keep their fellows.
-    views = (tracks if batch and tracks.shape[0] == 2 and graph.isolation_misses is not None
-             and solver.kept_fellows > 0 else None)
+    # views with mismatches: its models must keep their fellows, and its isolated points,
+    # told apart on both views' coordinates, are bridged.
+    joint = batch and tracks.shape[0] == 2 and graph.isolation_misses is not None
+    views = tracks if joint and solver.kept_fellows > 0 else None
     edges, neighbours = graph.edges, graph.neighbours
     nearest = graph.nearest_miss()
     suspect = _suspects(nearest, solver.isolation, also)
@@ -907,7 +910,8 @@ def _setting(tracks: np.ndarray, config: PearlConfig, rng: np.random.Generator,
         if held is not None:
             costs[held] = 0.0
         kept = ~(isolated[edges[:, 0]] | isolated[edges[:, 1]])
-        if solver.bridge_isolated and tracks.shape[0] >= BRIDGE_FRAMES and isolated.any():
+        if solver.bridge_isolated and (tracks.shape[0] >= BRIDGE_FRAMES or joint) \
+                and isolated.any():
             bridges, bridge_misses = graph.bridges(tracks, isolated, solver)
             edges = np.concatenate([edges, bridges])
             misses = np.concatenate([misses, bridge_misses])

@@ -20,9 +20,13 @@ FREE = PearlConfig(model='fundamental', solver=SolverSettings(local_ceiling=0.0)
 
 @pytest.mark.parametrize('seed', range(3))
 def test_every_model_of_a_two_view_fit_keeps_within_its_members_local_noise(two_view_scene, seed):
+    # One search, so that the setting drawn here from the same seed is the fit's own (each
+    # restart draws its own noise scale, and with it the reference).
+    single = PearlConfig(model='fundamental',
+                         solver=SolverSettings(two_view_restarts=1, one_motion_restarts=0))
     tracks, _ = two_view_scene(seed)
-    result = pearl.fit(tracks, CAPPED, rng=seed)
-    setting = pearl._setting(tracks, CAPPED, np.random.default_rng(seed))
+    result = pearl.fit(tracks, single, rng=seed)
+    setting = pearl._setting(tracks, single, np.random.default_rng(seed))
     assert setting.local is not None and setting.reference >= setting.scale
     for k, sigma in enumerate(result.sigmas):
         members = np.flatnonzero(result.labels == k)
@@ -50,12 +54,13 @@ def test_the_ceiling_lowers_the_error_of_kt3dmoseg_two_frames(kt3dmoseg_root: Pa
 
 def test_the_ceiling_lowers_the_error_of_adelaidermf_pairs(adelaidermf_root: Path) -> None:
     # Real data with ground truth: the 10 development pairs, mismatches a group of their own,
-    # over three seeds (a pair's error moves by several points between seeds).
+    # over three seeds (a pair's error moves by several points between seeds), each pair
+    # drawn from the seed alone as `pearl_bench suite --seeds 0 1 2` draws it.
     errors: dict[bool, list[float]] = {True: [], False: []}
     for seed in range(3):
-        for index, path in enumerate(adelaide.pair_paths(adelaidermf_root)):
+        for path in adelaide.pair_paths(adelaidermf_root):
             pair = adelaide.load_pair(path)
             for capped, config in ((True, CAPPED), (False, FREE)):
-                labels = pearl.fit(pair.tracks, config, rng=100 * seed + index).labels
+                labels = pearl.fit(pair.tracks, config, rng=seed).labels
                 errors[capped].append(misclassification(labels, pair.labels))
     assert np.mean(errors[True]) < np.mean(errors[False]) - 0.005
