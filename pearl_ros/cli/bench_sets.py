@@ -204,8 +204,8 @@ def hopkins_outliers(args: argparse.Namespace, root: Path, names: list[str]) -> 
     """``pearl_bench hopkins155 PATH --outliers SHARE``: outlier tracks added; or ``--frames
     two --mismatches SHARE``: gross mismatches added to the first and last frames."""
     overrides, config, online = _configs(args)
-    mismatches = getattr(args, 'mismatches', None)
-    mode, share = ('two', mismatches) if mismatches is not None else ('all', args.outliers)
+    mode, share = (('two', args.mismatches) if args.mismatches is not None
+                   else ('all', args.outliers))
     tasks = [Task('hopkins_outliers', str(root / n / f'{n}_truth.mat'), mode, config, online,
                   args.seed, share) for n in names]
     title = (f'PEaRL on Hopkins155, first and last frames with {100 * share:g}% mismatches'
@@ -254,10 +254,11 @@ def _suite_items(data: Path, args: argparse.Namespace) -> list[tuple[str, Any]]:
     # Every stream of the suite is seeded by --seed, as its batch fits are.
     seeded = dataclasses.replace(online, seed=args.seed)
     items += [('stream', StreamTask(str(hop), n, config, seeded)) for n in names]
-    items += [('set', Task('hopkins_outliers', str(hop / n / f'{n}_truth.mat'), 'all', config,
-                           online, args.seed, SUITE_OUTLIERS)) for n in names[::SUITE_EVERY]]
-    items += [('set', Task('hopkins_outliers', str(hop / n / f'{n}_truth.mat'), 'two', config,
-                           online, args.seed, SUITE_MISMATCHES)) for n in names[::SUITE_EVERY]]
+    # Every fifth sequence with outlier tracks (all frames), then with mismatches (two).
+    for mode, share in (('all', SUITE_OUTLIERS), ('two', SUITE_MISMATCHES)):
+        items += [('set', Task('hopkins_outliers', str(hop / n / f'{n}_truth.mat'), mode,
+                               config, online, args.seed, share))
+                  for n in names[::SUITE_EVERY]]
     for mode in ('all', 'two', 'stream'):
         items += [('set', Task('kt3dmoseg', str(p), mode, config, online, args.seed))
                   for p in clip_paths(data / SET_FOLDERS['kt3dmoseg'])]

@@ -39,11 +39,9 @@ def add_outlier_tracks(
     if tracks.ndim != 3 or tracks.shape[2] != 2 or labels.shape != (tracks.shape[1],):
         raise InputError(f'tracks must be (F, N, 2) with N labels, got {tracks.shape} and '
                          f'{labels.shape}')
-    if not 0.0 <= share < 1.0:
-        raise InputError(f'share must be in [0, 1), got {share!r}')
     rng = np.random.default_rng(rng)
     frames, n = tracks.shape[:2]
-    count = int(round(share * n / (1.0 - share)))
+    count = _added(share, n)
     low, high = tracks[0].min(axis=0), tracks[0].max(axis=0)
     start = rng.uniform(low, high, (count, 2))
     steps = rng.normal(0.0, step, (frames - 1, count, 2))
@@ -83,10 +81,15 @@ def add_mismatches(
             or labels.shape != (tracks.shape[1],):
         raise InputError(f'tracks must be (2, N, 2) with N labels, got {tracks.shape} and '
                          f'{labels.shape}')
-    if not 0.0 <= share < 1.0:
-        raise InputError(f'share must be in [0, 1), got {share!r}')
     rng = np.random.default_rng(rng)
-    count = int(round(share * tracks.shape[1] / (1.0 - share)))
+    count = _added(share, tracks.shape[1])
     views = [rng.uniform(view.min(axis=0), view.max(axis=0), (count, 2)) for view in tracks]
     return (np.concatenate([tracks, np.stack(views)], axis=1),
             np.concatenate([labels, np.full(count, OUTLIER, dtype=np.int64)]))
+
+
+def _added(share: float, clean: int) -> int:
+    """How many points to add to ``clean`` ones so that the added make up ``share`` of all."""
+    if not 0.0 <= share < 1.0:
+        raise InputError(f'share must be in [0, 1), got {share!r}')
+    return int(round(share * clean / (1.0 - share)))
